@@ -1,0 +1,185 @@
+"""`bench`: run, compare and time legged-robot controllers across physics engines.
+
+Examples:
+  bench list                                   what engines, robots, terrains and policies exist
+  bench run --sim pybullet --robot anymal      5 trials of 10 s, a table of metrics
+  bench run --policy stand --duration 5 --json one JSON object on stdout
+  bench perf --sim mujoco --robot a1           framework vs raw engine steps/s
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+
+import numpy as np
+from tqdm import tqdm
+
+from benchmark import __version__
+from benchmark.policies import available_policies, make_policy
+from benchmark.runner import EpisodeConfig, TrialResult, run_trial, summarize
+from robots import UnknownNameError, available_robots, load_robot
+from sims import available_sims, make_sim
+from sims.terrain import TERRAINS, Terrain
+
+
+class CliError(Exception):
+    """A user mistake: reported as one line, exit code 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:  # one line, not a usage dump
+        raise CliError(f"{message} (see '{self.prog} --help')")
+
+
+def _positive(kind: type) -> callable:
+    def parse(text: str):
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected a {kind.__name__}, got '{text}'") from None
+        if not value > 0:
+            raise argparse.ArgumentTypeError(f"must be > 0, got {text}")
+        return value
+
+    parse.__name__ = f"positive {kind.__name__}"
+    return parse
+
+
+def _add_cell_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--sim", default="mujoco", help=f"physics engine: {', '.join(available_sims())} (default mujoco)")
+    parser.add_argument("--robot", default="a1", help=f"robot: {', '.join(available_robots())} (default a1)")
+    parser.add_argument("--terrain", default="flat", help=f"terrain: {', '.join(TERRAINS)} (default flat)")
+    parser.add_argument("--terrain-seed", type=int, default=0, help="seed of the rough heightfield (default 0)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="bench", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--version", action="version", version=f"promptwalk {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+
+    run = sub.add_parser("run", help="run trials of one policy on one robot, engine and terrain",
+                         description="Run trials and report normalized walking time (NWT), success, "
+                                     "distance and velocity per trial and on average.")
+    _add_cell_options(run)
+    run.add_argument("--policy", default="stand", help=f"controller: {', '.join(available_policies())} (default stand)")
+    run.add_argument("--trials", type=_positive(int), default=5, help="number of trials (default 5, as in the paper)")
+    run.add_argument("--duration", type=_positive(float), default=10.0, help="episode length in s (default 10)")
+    run.add_argument("--seed", type=int, default=0, help="seed of the first trial; trial i uses seed+i (default 0)")
+    run.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    run.set_defaults(func=cmd_run)
+
+    lst = sub.add_parser("list", help="list engines, robots, terrains and policies")
+    lst.add_argument("--json", action="store_true", help="print one JSON object")
+    lst.set_defaults(func=cmd_list)
+
+    perf = sub.add_parser("perf", help="framework steps/s against the raw engine loop, same model, same run",
+                          description="Times `sims` stepping (PD, state, contacts) and the engine's bare loop "
+                                      "on the same model, alternating rounds, and reports best-of physics steps/s.")
+    _add_cell_options(perf)
+    perf.add_argument("--steps", type=_positive(int), default=500, help="control steps per round (default 500 = 50 s)")
+    perf.add_argument("--rounds", type=_positive(int), default=3, help="alternating rounds; the best is kept (default 3)")
+    perf.add_argument("--json", action="store_true", help="print one JSON object")
+    perf.set_defaults(func=cmd_perf)
+    return parser
+
+
+def _cell(args: argparse.Namespace):
+    robot = load_robot(args.robot)
+    terrain = Terrain(args.terrain, seed=args.terrain_seed)
+    if args.sim not in available_sims():
+        raise UnknownNameError("simulator", args.sim, available_sims())
+    return robot, terrain
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    robot, terrain = _cell(args)
+    policy = make_policy(args.policy, robot)
+    config = EpisodeConfig(duration=args.duration)
+    sim = make_sim(args.sim, robot, terrain)
+    trials: list[TrialResult] = []
+    try:
+        for i in tqdm(range(args.trials), desc=f"{args.sim}/{args.robot}/{args.terrain}/{args.policy}",
+                      unit="trial", file=sys.stderr, disable=None):
+            trials.append(run_trial(sim, robot, terrain, policy, config, seed=args.seed + i))
+    finally:
+        sim.close()
+    result = {"sim": args.sim, "robot": args.robot, "terrain": args.terrain, "terrain_seed": args.terrain_seed,
+              "policy": args.policy, "duration": args.duration, "seed": args.seed,
+              "trials": [t.to_dict() for t in trials], **summarize(trials)}
+    if args.json:
+        print(json.dumps(result))
+    else:
+        _print_run_table(result)
+    return 0
+
+
+def _print_run_table(result: dict) -> None:
+    print(f"{result['policy']} on {result['robot']} / {result['sim']} / {result['terrain']}, "
+          f"{len(result['trials'])} x {result['duration']:g} s")
+    print(f"{'seed':>4} {'nwt':>5} {'ok':>3} {'dist m':>7} {'vx m/s':>7} {'drift m':>8}  fall")
+    for t in result["trials"]:
+        fall = f"{t['fall_time']:.1f} s: {t['fall_reason']}" if t["fall_time"] is not None else "-"
+        print(f"{t['seed']:>4} {t['nwt']:>5.2f} {'yes' if t['success'] else 'no':>3} {t['distance_m']:>7.2f} "
+              f"{t['mean_vx']:>7.2f} {t['lateral_drift_m']:>8.2f}  {fall}")
+    print(f"mean NWT {result['nwt']:.3f}, success rate {result['success_rate']:.2f}, "
+          f"distance {result['distance_m']:.2f} m, vx {result['mean_vx']:.2f} m/s")
+
+
+def cmd_list(args: argparse.Namespace) -> int:
+    listing = {"sims": available_sims(), "robots": available_robots(), "terrains": list(TERRAINS),
+               "policies": available_policies()}
+    if args.json:
+        print(json.dumps(listing))
+    else:
+        for key, names in listing.items():
+            print(f"{key:9} {', '.join(names)}")
+    return 0
+
+
+def cmd_perf(args: argparse.Namespace) -> int:
+    robot, terrain = _cell(args)
+    sim = make_sim(args.sim, robot, terrain)
+    targets = robot.default_pose
+    physics_steps = args.steps * sim.physics.substeps
+    raw, framework = [], []
+    try:
+        for _ in tqdm(range(args.rounds), desc="perf rounds", file=sys.stderr, disable=None):
+            sim.reset(0)
+            start = time.perf_counter()
+            sim.raw_loop(targets, args.steps)
+            raw.append(physics_steps / (time.perf_counter() - start))
+            sim.reset(0)
+            start = time.perf_counter()
+            for _ in range(args.steps):
+                sim.step(targets)
+            framework.append(physics_steps / (time.perf_counter() - start))
+    finally:
+        sim.close()
+    result = {"sim": args.sim, "robot": args.robot, "terrain": args.terrain, "control_steps": args.steps,
+              "rounds": args.rounds, "raw_steps_per_s": max(raw), "framework_steps_per_s": max(framework),
+              "ratio": max(framework) / max(raw)}
+    if args.json:
+        print(json.dumps(result))
+    else:
+        print(f"{args.sim} / {args.robot} / {args.terrain}: physics steps per second (best of {args.rounds})")
+        print(f"  raw engine loop   {result['raw_steps_per_s']:>10,.0f}")
+        print(f"  promptwalk sims   {result['framework_steps_per_s']:>10,.0f}")
+        print(f"  ratio             {result['ratio']:>10.3f}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+        return args.func(args)
+    except (CliError, UnknownNameError, ValueError) as err:
+        print(f"bench: error: {err}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

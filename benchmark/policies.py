@@ -1,0 +1,51 @@
+"""Policies map an observation to 12 normalized actions (targets = default + scale * action).
+
+Registered by name; later policies (rl, llm) add themselves to POLICIES.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Protocol
+
+import numpy as np
+
+from robots import Robot, UnknownNameError
+from sims.base import RobotState
+
+
+class Policy(Protocol):
+    name: str
+
+    def reset(self, seed: int) -> None: ...
+
+    def act(self, obs: np.ndarray, state: RobotState) -> np.ndarray:
+        """Normalized actions (12,) for the 48-dim observation `obs` of `state`."""
+
+
+class StandPolicy:
+    """Holds the default pose: the baseline every other policy must beat."""
+
+    name = "stand"
+
+    def __init__(self, robot: Robot) -> None:
+        self._zeros = np.zeros(robot.num_joints)
+
+    def reset(self, seed: int) -> None:
+        pass
+
+    def act(self, obs: np.ndarray, state: RobotState) -> np.ndarray:
+        return self._zeros
+
+
+POLICIES: dict[str, Callable[..., Policy]] = {"stand": StandPolicy}
+
+
+def available_policies() -> list[str]:
+    return sorted(POLICIES)
+
+
+def make_policy(name: str, robot: Robot, **options) -> Policy:
+    if name not in POLICIES:
+        raise UnknownNameError("policy", name, available_policies())
+    return POLICIES[name](robot, **options)

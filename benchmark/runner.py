@@ -1,0 +1,111 @@
+"""The 10 Hz episode loop and its per-trial metrics.
+
+One loop for everything: observation -> policy -> targets -> `sim.step`. Metrics count the
+evaluated phase only (from `eval_start`, e.g. an LLM's takeover, to the end), so a seed
+policy's warm-up never inflates another policy's score.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from benchmark.falls import fall_reason
+from benchmark.observation import rl_observation
+from benchmark.policies import Policy
+from robots import Robot
+from sims.base import RobotState, Simulator
+from sims.terrain import Terrain
+
+
+@dataclass(frozen=True)
+class EpisodeConfig:
+    duration: float = 10.0  # s of simulated time
+    eval_start: float = 0.0  # s; metrics cover [eval_start, duration]
+
+    def __post_init__(self) -> None:
+        if not self.duration > 0:
+            raise ValueError(f"duration must be > 0 s, got {self.duration}")
+        if not 0 <= self.eval_start < self.duration:
+            raise ValueError(f"eval_start must be in [0, duration), got {self.eval_start}")
+
+
+@dataclass(frozen=True)
+class TrialResult:
+    seed: int
+    nwt: float  # normalized walking time: evaluated time before a fall / evaluated duration
+    success: bool  # no fall in the evaluated phase
+    distance_m: float  # base displacement along the world x axis (forward), evaluated phase
+    lateral_drift_m: float  # base displacement along world y, evaluated phase
+    mean_vx: float  # mean base-frame forward velocity while walking, m/s
+    fall_time: float | None  # s since the start of the episode
+    fall_reason: str | None
+    control_steps: int
+    wall_s: float
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+StepCallback = Callable[[float, RobotState, np.ndarray, np.ndarray], None]
+
+
+def run_trial(sim: Simulator, robot: Robot, terrain: Terrain, policy: Policy, config: EpisodeConfig,
+              seed: int, on_step: StepCallback | None = None) -> TrialResult:
+    """Run one episode; `on_step(time, state, actions, targets)` sees every control step."""
+    start = time.perf_counter()
+    dt = sim.physics.control_dt
+    steps = int(round(config.duration / dt))
+    eval_step = int(round(config.eval_start / dt))
+    state = sim.reset(seed)
+    policy.reset(seed)
+    action = np.zeros(robot.num_joints)
+    eval_origin = state.base_pos.copy()
+    vx: list[float] = []
+    fall_time, reason, last = None, None, state
+    for k in range(steps):
+        obs = rl_observation(state, robot, robot.command, action)
+        action = np.asarray(policy.act(obs, state), dtype=float)
+        targets = robot.targets_from_actions(action)
+        state = sim.step(targets)
+        if on_step is not None:
+            on_step((k + 1) * dt, state, action, targets)
+        if k + 1 == eval_step:
+            eval_origin = state.base_pos.copy()
+        reason = fall_reason(state, robot, terrain)
+        if reason is not None:
+            fall_time = (k + 1) * dt
+            break
+        last = state
+        if k + 1 > eval_step:
+            vx.append(float(state.base_lin_vel[0]))
+    evaluated = config.duration - config.eval_start
+    walked = (fall_time if fall_time is not None else config.duration) - config.eval_start
+    displacement = last.base_pos - eval_origin if fall_time is None or fall_time > config.eval_start else np.zeros(3)
+    return TrialResult(
+        seed=seed,
+        nwt=float(np.clip(walked / evaluated, 0.0, 1.0)),
+        success=fall_time is None,
+        distance_m=float(displacement[0]),
+        lateral_drift_m=float(displacement[1]),
+        mean_vx=float(np.mean(vx)) if vx else 0.0,
+        fall_time=fall_time,
+        fall_reason=reason,
+        control_steps=k + 1 if steps else 0,
+        wall_s=time.perf_counter() - start,
+    )
+
+
+def summarize(trials: list[TrialResult]) -> dict:
+    """Means over trials: the numbers a table reports."""
+    if not trials:
+        return {"nwt": 0.0, "success_rate": 0.0, "distance_m": 0.0, "mean_vx": 0.0}
+    return {
+        "nwt": float(np.mean([t.nwt for t in trials])),
+        "success_rate": float(np.mean([t.success for t in trials])),
+        "distance_m": float(np.mean([t.distance_m for t in trials])),
+        "mean_vx": float(np.mean([t.mean_vx for t in trials])),
+    }

@@ -1,0 +1,115 @@
+"""Robot descriptions as data: one folder per robot with a `robot.toml` and a URDF.
+
+Everything an engine, a policy or a prompt needs to know about a robot is read from here;
+no other module branches on a robot's name.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass
+from functools import cache
+from pathlib import Path
+
+import numpy as np
+
+ROBOTS_DIR = Path(__file__).parent
+LEGS = ("FR", "FL", "RR", "RL")
+JOINT_ROLES = ("hip", "thigh", "calf")
+CANONICAL_JOINTS = tuple(f"{leg}_{role}" for leg in LEGS for role in JOINT_ROLES)
+
+
+class UnknownNameError(ValueError):
+    """A name (robot, simulator, terrain, policy) that is not registered."""
+
+    def __init__(self, kind: str, name: str, valid: list[str] | tuple[str, ...]):
+        super().__init__(f"unknown {kind} '{name}'; valid: {', '.join(sorted(valid))}")
+
+
+@dataclass(frozen=True)
+class ObservationScales:
+    lin_vel: float
+    ang_vel: float
+    joint_pos: float
+    joint_vel: float
+
+
+@dataclass(frozen=True)
+class FallCriteria:
+    min_height: float
+    max_tilt_deg: float
+    contact_links: tuple[str, ...]
+
+
+@dataclass(frozen=True)
+class Robot:
+    """A legged robot: its model file and the control facts every engine shares."""
+
+    name: str
+    title: str
+    urdf: Path
+    base_link: str
+    joints: tuple[str, ...]  # native names in canonical order
+    foot_links: tuple[str, ...]  # canonical leg order
+    default_pose: np.ndarray
+    kp: float
+    kd: float
+    torque_limit: float
+    action_scale: float
+    init_height: float
+    command: np.ndarray
+    obs_scales: ObservationScales
+    fall: FallCriteria
+
+    @property
+    def num_joints(self) -> int:
+        return len(self.joints)
+
+    def targets_from_actions(self, actions: np.ndarray) -> np.ndarray:
+        """Joint targets for normalized actions: default pose + action_scale * action."""
+        return self.default_pose + self.action_scale * np.asarray(actions, dtype=float)
+
+
+def available_robots() -> list[str]:
+    return sorted(p.parent.name for p in ROBOTS_DIR.glob("*/robot.toml"))
+
+
+@cache
+def load_robot(name: str) -> Robot:
+    """Read `robots/<name>/robot.toml`; raises UnknownNameError or ValueError on bad data."""
+    path = ROBOTS_DIR / name / "robot.toml"
+    if not path.is_file():
+        raise UnknownNameError("robot", name, available_robots())
+    with path.open("rb") as f:
+        data = tomllib.load(f)
+    try:
+        robot = Robot(
+            name=data["name"],
+            title=data["title"],
+            urdf=path.parent / data["urdf"],
+            base_link=data["base_link"],
+            joints=tuple(data["joints"]),
+            foot_links=tuple(data["foot_links"]),
+            default_pose=np.array(data["default_pose"], dtype=float),
+            kp=float(data["kp"]),
+            kd=float(data["kd"]),
+            torque_limit=float(data["torque_limit"]),
+            action_scale=float(data["action_scale"]),
+            init_height=float(data["init_height"]),
+            command=np.array(data["command"], dtype=float),
+            obs_scales=ObservationScales(**data["obs_scales"]),
+            fall=FallCriteria(
+                min_height=float(data["fall"]["min_height"]),
+                max_tilt_deg=float(data["fall"]["max_tilt_deg"]),
+                contact_links=tuple(data["fall"]["contact_links"]),
+            ),
+        )
+    except (KeyError, TypeError) as err:
+        raise ValueError(f"{path}: missing or malformed field {err}") from err
+    if len(robot.joints) != len(CANONICAL_JOINTS) or len(robot.default_pose) != len(robot.joints):
+        raise ValueError(f"{path}: expected {len(CANONICAL_JOINTS)} joints and default pose values")
+    if len(robot.foot_links) != len(LEGS):
+        raise ValueError(f"{path}: expected {len(LEGS)} foot links")
+    if not robot.urdf.is_file():
+        raise ValueError(f"{path}: URDF {robot.urdf} not found")
+    return robot

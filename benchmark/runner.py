@@ -41,6 +41,7 @@ class TrialResult:
     distance_m: float  # base displacement along the world x axis (forward), evaluated phase
     lateral_drift_m: float  # base displacement along world y, evaluated phase
     mean_vx: float  # mean base-frame forward velocity while walking, m/s
+    mean_height_m: float  # mean base height above the terrain while walking
     fall_time: float | None  # s since the start of the episode
     fall_reason: str | None
     control_steps: int
@@ -65,6 +66,7 @@ def run_trial(sim: Simulator, robot: Robot, terrain: Terrain, policy: Policy, co
     action = np.zeros(robot.num_joints)
     eval_origin = state.base_pos.copy()
     vx: list[float] = []
+    heights: list[float] = []
     fall_time, reason, last = None, None, state
     for k in range(steps):
         obs = rl_observation(state, robot, robot.command, action)
@@ -82,6 +84,7 @@ def run_trial(sim: Simulator, robot: Robot, terrain: Terrain, policy: Policy, co
         last = state
         if k + 1 > eval_step:
             vx.append(float(state.base_lin_vel[0]))
+            heights.append(float(state.base_pos[2]) - terrain.height_at(*state.base_pos[:2]))
     evaluated = config.duration - config.eval_start
     walked = (fall_time if fall_time is not None else config.duration) - config.eval_start
     displacement = last.base_pos - eval_origin if fall_time is None or fall_time > config.eval_start else np.zeros(3)
@@ -92,6 +95,7 @@ def run_trial(sim: Simulator, robot: Robot, terrain: Terrain, policy: Policy, co
         distance_m=float(displacement[0]),
         lateral_drift_m=float(displacement[1]),
         mean_vx=float(np.mean(vx)) if vx else 0.0,
+        mean_height_m=float(np.mean(heights)) if heights else 0.0,
         fall_time=fall_time,
         fall_reason=reason,
         control_steps=k + 1 if steps else 0,

@@ -134,6 +134,7 @@ class MujocoSim:
         )
 
     def body_poses(self) -> BodyPoses:
+        mujoco.mj_kinematics(self.model, self.data)  # xpos after mj_step lags qpos by one substep
         ids = self._robot_bodies
         return BodyPoses(self._body_names, self.data.xpos[ids].copy(), self.data.xquat[ids].copy())
 

@@ -1,0 +1,61 @@
+"""The `bench` command as a user runs it: a real process, real engines."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+
+def bench(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "benchmark.cli", *args], capture_output=True, text=True, timeout=300)
+
+
+def test_run_json_reports_trials_and_means():
+    out = bench("run", "--sim", "pybullet", "--robot", "anymal", "--terrain", "rough", "--policy", "stand",
+                "--trials", "2", "--duration", "2", "--json")
+    assert out.returncode == 0, out.stderr
+    result = json.loads(out.stdout)
+    assert (result["sim"], result["robot"], result["terrain"], result["policy"]) == ("pybullet", "anymal", "rough", "stand")
+    assert [t["seed"] for t in result["trials"]] == [0, 1]
+    assert result["success_rate"] == 1.0 and result["nwt"] == 1.0
+    assert {"nwt", "success", "distance_m", "mean_vx", "fall_time"} <= set(result["trials"][0])
+
+
+def test_run_table_is_readable():
+    out = bench("run", "--trials", "1", "--duration", "1")
+    assert out.returncode == 0, out.stderr
+    assert "mean NWT 1.000, success rate 1.00" in out.stdout
+
+
+def test_list_names_everything():
+    listing = json.loads(bench("list", "--json").stdout)
+    assert listing == {"sims": ["mujoco", "pybullet"], "robots": ["a1", "anymal"],
+                       "terrains": ["flat", "rough"], "policies": ["stand"]}
+
+
+def test_perf_reports_both_loops_and_their_ratio():
+    out = bench("perf", "--sim", "mujoco", "--robot", "a1", "--steps", "20", "--rounds", "1", "--json")
+    assert out.returncode == 0, out.stderr
+    result = json.loads(out.stdout)
+    assert result["raw_steps_per_s"] > 0 and result["framework_steps_per_s"] > 0
+    assert result["ratio"] == pytest.approx(result["framework_steps_per_s"] / result["raw_steps_per_s"])
+
+
+@pytest.mark.parametrize("args,expected", [
+    (["run", "--sim", "gazebo"], "unknown simulator 'gazebo'; valid: mujoco, pybullet"),
+    (["run", "--robot", "spot"], "unknown robot 'spot'; valid: a1, anymal"),
+    (["run", "--terrain", "stairs"], "unknown terrain 'stairs'; valid: flat, rough"),
+    (["run", "--policy", "gpt9"], "unknown policy 'gpt9'; valid: stand"),
+    (["run", "--duration", "-1"], "argument --duration: must be > 0, got -1"),
+    (["run", "--trials", "two"], "argument --trials: expected a int, got 'two'"),
+    (["perf", "--sim", "gazebo"], "unknown simulator 'gazebo'"),
+])
+def test_bad_input_is_one_clear_line_and_exit_2(args, expected):
+    out = bench(*args)
+    assert out.returncode == 2
+    lines = out.stderr.strip().splitlines()
+    assert len(lines) == 1 and expected in lines[0], out.stderr
+    assert out.stdout == ""

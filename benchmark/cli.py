@@ -71,6 +71,18 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     run.set_defaults(func=cmd_run)
 
+    train = sub.add_parser("train", help="train a seed policy with stable-baselines3 PPO (CPU, minutes)",
+                           description=__import__("benchmark.train", fromlist=["x"]).__doc__,
+                           formatter_class=argparse.RawDescriptionHelpFormatter)
+    train.add_argument("--robot", default="a1", help=f"robot: {', '.join(available_robots())} (default a1)")
+    train.add_argument("--sim", default="mujoco", help="engine to train in (default mujoco)")
+    train.add_argument("--steps", type=_positive(int), default=1_000_000, help="environment steps (default 1e6)")
+    train.add_argument("--seed", type=int, default=0, help="seed of PPO and the environments (default 0)")
+    train.add_argument("--out", default=None, help="folder for train_log.csv and policy.npz (default runs/train-ROBOT)")
+    train.add_argument("--eval-every", type=_positive(int), default=50_000, help="steps between evaluations")
+    train.add_argument("--ship", action="store_true", help="also write robots/ROBOT/policy.npz and policy.json")
+    train.set_defaults(func=cmd_train)
+
     lst = sub.add_parser("list", help="list engines, robots, terrains and policies")
     lst.add_argument("--json", action="store_true", help="print one JSON object")
     lst.set_defaults(func=cmd_list)
@@ -126,6 +138,20 @@ def _print_run_table(result: dict) -> None:
               f"{t['mean_vx']:>7.2f} {t['lateral_drift_m']:>8.2f}  {fall}")
     print(f"mean NWT {result['nwt']:.3f}, success rate {result['success_rate']:.2f}, "
           f"distance {result['distance_m']:.2f} m, vx {result['mean_vx']:.2f} m/s")
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from benchmark.train import train
+
+    load_robot(args.robot)
+    if args.sim not in available_sims():
+        raise UnknownNameError("simulator", args.sim, available_sims())
+    out = Path(args.out or f"runs/train-{args.robot}")
+    path = train(args.robot, args.sim, args.steps, args.seed, out, args.eval_every, args.ship)
+    print(f"policy written to {path}; log in {out / 'train_log.csv'}")
+    return 0
 
 
 def cmd_list(args: argparse.Namespace) -> int:

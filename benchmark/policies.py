@@ -6,10 +6,12 @@ Registered by name; later policies (rl, llm) add themselves to POLICIES.
 from __future__ import annotations
 
 from collections.abc import Callable
+from pathlib import Path
 from typing import Protocol
 
 import numpy as np
 
+from benchmark.mlp import MlpActor
 from robots import Robot, UnknownNameError
 from sims.base import RobotState
 
@@ -38,7 +40,28 @@ class StandPolicy:
         return self._zeros
 
 
-POLICIES: dict[str, Callable[..., Policy]] = {"stand": StandPolicy}
+class RLPolicy:
+    """The shipped seed policy of the robot (`robots/<name>/policy.npz`), or a given actor."""
+
+    name = "rl"
+
+    def __init__(self, robot: Robot, actor: MlpActor | None = None, path: Path | None = None) -> None:
+        if actor is None:
+            path = path or robot.urdf.parent / "policy.npz"
+            if not path.is_file():
+                raise ValueError(f"no seed policy for robot '{robot.name}' at {path}; train one with "
+                                 f"'bench train --robot {robot.name} --ship'")
+            actor = MlpActor.load(path)
+        self.actor = actor
+
+    def reset(self, seed: int) -> None:
+        pass
+
+    def act(self, obs: np.ndarray, state: RobotState) -> np.ndarray:
+        return self.actor(obs)
+
+
+POLICIES: dict[str, Callable[..., Policy]] = {"stand": StandPolicy, "rl": RLPolicy}
 
 
 def available_policies() -> list[str]:

@@ -13,11 +13,10 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from benchmark.falls import fall_reason
-from benchmark.observation import rl_observation
+from benchmark.control import ControlLoop
 from benchmark.policies import Policy
 from robots import Robot
-from sims.base import RobotState, Simulator
+from sims.base import Simulator
 from sims.terrain import Terrain
 
 
@@ -51,38 +50,34 @@ class TrialResult:
         return asdict(self)
 
 
-StepCallback = Callable[[float, RobotState, np.ndarray, np.ndarray], None]
+StepCallback = Callable[[ControlLoop], None]
 
 
 def run_trial(sim: Simulator, robot: Robot, terrain: Terrain, policy: Policy, config: EpisodeConfig,
               seed: int, on_step: StepCallback | None = None) -> TrialResult:
-    """Run one episode; `on_step(time, state, actions, targets)` sees every control step."""
+    """Run one episode; `on_step(loop)` sees every control step (state, action, targets)."""
     start = time.perf_counter()
-    dt = sim.physics.control_dt
-    steps = int(round(config.duration / dt))
-    eval_step = int(round(config.eval_start / dt))
-    state = sim.reset(seed)
+    loop = ControlLoop(sim, robot, terrain)
+    steps = int(round(config.duration / loop.dt))
+    eval_step = int(round(config.eval_start / loop.dt))
+    loop.reset(seed)
     policy.reset(seed)
-    action = np.zeros(robot.num_joints)
-    eval_origin = state.base_pos.copy()
+    eval_origin = loop.state.base_pos.copy()
     vx: list[float] = []
     heights: list[float] = []
-    fall_time, reason, last = None, None, state
-    for k in range(steps):
-        obs = rl_observation(state, robot, robot.command, action)
-        action = np.asarray(policy.act(obs, state), dtype=float)
-        targets = robot.targets_from_actions(action)
-        state = sim.step(targets)
+    fall_time, last = None, loop.state
+    for _ in range(steps):
+        loop.step(policy.act(loop.obs, loop.state))
+        state = loop.state
         if on_step is not None:
-            on_step((k + 1) * dt, state, action, targets)
-        if k + 1 == eval_step:
+            on_step(loop)
+        if loop.steps == eval_step:
             eval_origin = state.base_pos.copy()
-        reason = fall_reason(state, robot, terrain)
-        if reason is not None:
-            fall_time = (k + 1) * dt
+        if loop.fall is not None:
+            fall_time = loop.time
             break
         last = state
-        if k + 1 > eval_step:
+        if loop.steps > eval_step:
             vx.append(float(state.base_lin_vel[0]))
             heights.append(float(state.base_pos[2]) - terrain.height_at(*state.base_pos[:2]))
     evaluated = config.duration - config.eval_start
@@ -97,8 +92,8 @@ def run_trial(sim: Simulator, robot: Robot, terrain: Terrain, policy: Policy, co
         mean_vx=float(np.mean(vx)) if vx else 0.0,
         mean_height_m=float(np.mean(heights)) if heights else 0.0,
         fall_time=fall_time,
-        fall_reason=reason,
-        control_steps=k + 1 if steps else 0,
+        fall_reason=loop.fall,
+        control_steps=loop.steps,
         wall_s=time.perf_counter() - start,
     )
 

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 from dataclasses import dataclass
 from typing import NamedTuple, Protocol
 
@@ -45,8 +47,21 @@ class RobotState(NamedTuple):
     fall_contact: bool  # a link listed in the robot's fall contact_links touches the terrain
 
     def is_finite(self) -> bool:
-        return all(np.all(np.isfinite(a)) for a in (self.base_pos, self.base_quat, self.base_lin_vel,
-                                                     self.base_ang_vel, self.joint_pos, self.joint_vel))
+        """False if any pose or velocity entry is NaN or infinite (a sum propagates both)."""
+        total = 0.0
+        for array in (self.base_pos, self.base_quat, self.base_lin_vel, self.base_ang_vel, self.joint_pos,
+                      self.joint_vel):
+            total += float(array.sum())
+        return math.isfinite(total)
+
+
+@dataclass(frozen=True)
+class Dynamics:
+    """Physical variations an engine applies for domain randomization; defaults are nominal."""
+
+    friction: float = 1.0  # sliding friction of every robot/terrain contact
+    base_mass_scale: float = 1.0  # factor on the base link's mass (payload, battery)
+    motor_strength: float = 1.0  # factor on the PD torque (before the torque limit)
 
 
 @dataclass(frozen=True)
@@ -70,6 +85,12 @@ class Simulator(Protocol):
 
     def step(self, joint_targets: np.ndarray) -> RobotState:
         """Advance one control period: `substeps` physics steps of clipped PD torque."""
+
+    def set_dynamics(self, dynamics: Dynamics) -> None:
+        """Apply friction, added mass and motor strength until the next call."""
+
+    def push_base(self, velocity_xy: np.ndarray) -> None:
+        """Add a horizontal velocity (world frame, m/s) to the base: a shove."""
 
     def body_poses(self) -> BodyPoses: ...
 
@@ -99,7 +120,7 @@ def initial_joint_pos(robot: Robot, seed: int, spread: float = 0.05) -> np.ndarr
     return robot.default_pose + rng.uniform(-spread, spread, robot.num_joints)
 
 
-def pd_torque(robot: Robot, targets: np.ndarray, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+def pd_torque(robot: Robot, targets: np.ndarray, q: np.ndarray, qd: np.ndarray, strength: float = 1.0) -> np.ndarray:
     """The 200 Hz joint PD law every engine applies, clipped to the torque limit."""
-    tau = robot.kp * (targets - q) - robot.kd * qd
+    tau = strength * (robot.kp * (targets - q) - robot.kd * qd)
     return np.clip(tau, -robot.torque_limit, robot.torque_limit)

@@ -13,7 +13,8 @@ import mujoco
 import numpy as np
 
 from robots import Robot
-from sims.base import BodyPoses, PhysicsConfig, RobotState, initial_joint_pos
+from sims import check_single_device
+from sims.base import BodyPoses, Dynamics, PhysicsConfig, RobotState, initial_joint_pos
 from sims.terrain import Terrain
 
 TERRAIN_BOTTOM = 0.1  # m, thickness of the heightfield box below its lowest point
@@ -60,7 +61,9 @@ class MujocoSim:
 
     name = "mujoco"
 
-    def __init__(self, robot: Robot, terrain: Terrain, physics: PhysicsConfig = PhysicsConfig()) -> None:
+    def __init__(self, robot: Robot, terrain: Terrain, physics: PhysicsConfig = PhysicsConfig(),
+                 device: str | None = None, solver: str | None = None) -> None:
+        check_single_device(self.name, device, solver)
         self.robot, self.terrain, self.physics = robot, terrain, physics
         self.model = _build_spec(robot, terrain, physics).compile()
         self.data = mujoco.MjData(self.model)
@@ -87,6 +90,8 @@ class MujocoSim:
         d = self.data
         self._qpos, self._qvel, self._act_force = d.qpos, d.qvel, d.actuator_force
         self._rot = np.zeros(9)
+        self._base_body = body_id(robot.base_link)
+        self._nominal_mass = float(m.body_mass[self._base_body])
         self._robot_bodies = np.arange(1, m.nbody)
         self._body_names = tuple(m.body(i).name for i in self._robot_bodies)
 
@@ -132,6 +137,17 @@ class MujocoSim:
             foot_contact=self._feet_of_bits[bits & (self._fall_bit - 1)],
             fall_contact=bits >= self._fall_bit,
         )
+
+    def set_dynamics(self, dynamics: Dynamics) -> None:
+        m, robot, s = self.model, self.robot, dynamics.motor_strength
+        m.geom_friction[:, 0] = dynamics.friction  # MuJoCo takes the larger of two geoms': set all
+        m.body_mass[self._base_body] = self._nominal_mass * dynamics.base_mass_scale
+        m.actuator_gainprm[:, 0] = s * robot.kp
+        m.actuator_biasprm[:, 1] = -s * robot.kp
+        m.actuator_biasprm[:, 2] = -s * robot.kd
+
+    def push_base(self, velocity_xy: np.ndarray) -> None:
+        self.data.qvel[:2] += velocity_xy
 
     def body_poses(self) -> BodyPoses:
         mujoco.mj_kinematics(self.model, self.data)  # xpos after mj_step lags qpos by one substep

@@ -35,7 +35,8 @@ with _quiet_stdout():
     from pybullet_utils.bullet_client import BulletClient
 
 from robots import Robot
-from sims.base import BodyPoses, PhysicsConfig, RobotState, initial_joint_pos, pd_torque, world_to_base
+from sims import check_single_device
+from sims.base import BodyPoses, Dynamics, PhysicsConfig, RobotState, initial_joint_pos, pd_torque, world_to_base
 from sims.terrain import Terrain
 
 
@@ -48,7 +49,9 @@ class PybulletSim:
 
     name = "pybullet"
 
-    def __init__(self, robot: Robot, terrain: Terrain, physics: PhysicsConfig = PhysicsConfig()) -> None:
+    def __init__(self, robot: Robot, terrain: Terrain, physics: PhysicsConfig = PhysicsConfig(),
+                 device: str | None = None, solver: str | None = None) -> None:
+        check_single_device(self.name, device, solver)
         self.robot, self.terrain, self.physics = robot, terrain, physics
         with _quiet_stdout():
             self.client = p = BulletClient(connection_mode=pybullet.DIRECT)
@@ -68,6 +71,8 @@ class PybulletSim:
         p.setJointMotorControlArray(self.body, self._joints, p.VELOCITY_CONTROL, forces=[0.0] * len(self._joints))
         self._com_offset = np.array(p.getDynamicsInfo(self.body, -1)[3])  # base inertial frame in link frame
         self._torque = np.zeros(robot.num_joints)
+        self._nominal_mass = p.getDynamicsInfo(self.body, -1)[0]
+        self._strength = 1.0
         self.time = 0.0
 
     def _load_terrain(self) -> int:
@@ -83,7 +88,7 @@ class PybulletSim:
                 heightfieldData=t.heights.ravel().tolist(), numHeightfieldRows=cols, numHeightfieldColumns=rows)
             position = [*t.center, (t.heights.min() + t.heights.max()) / 2]
         ground = p.createMultiBody(0, shape, basePosition=position)
-        p.changeDynamics(ground, -1, lateralFriction=self.physics.friction, restitution=0.0)
+        p.changeDynamics(ground, -1, lateralFriction=1.0, restitution=0.0)  # Bullet multiplies frictions
         return ground
 
     def reset(self, seed: int = 0) -> RobotState:
@@ -111,7 +116,7 @@ class PybulletSim:
             states = p.getJointStates(body, joints)
             q = np.array([s[0] for s in states])
             qd = np.array([s[1] for s in states])
-            self._torque = pd_torque(robot, targets, q, qd)
+            self._torque = pd_torque(robot, targets, q, qd, self._strength)
             p.setJointMotorControlArray(body, joints, p.TORQUE_CONTROL, forces=self._torque)
             p.stepSimulation()
 
@@ -150,6 +155,18 @@ class PybulletSim:
             foot_contact=np.array([f in touching for f in self._feet]),
             fall_contact=any(link in touching for link in self._fall_links),
         )
+
+    def set_dynamics(self, dynamics: Dynamics) -> None:
+        p = self.client
+        for link in self._links:  # Bullet multiplies the two frictions; the ground keeps 1.0
+            p.changeDynamics(self.body, link, lateralFriction=dynamics.friction)
+        p.changeDynamics(self.body, -1, mass=self._nominal_mass * dynamics.base_mass_scale)
+        self._strength = dynamics.motor_strength
+
+    def push_base(self, velocity_xy: np.ndarray) -> None:
+        linear, angular = self.client.getBaseVelocity(self.body)
+        self.client.resetBaseVelocity(self.body, [linear[0] + velocity_xy[0], linear[1] + velocity_xy[1], linear[2]],
+                                      angular)
 
     def body_poses(self) -> BodyPoses:
         p, body = self.client, self.body

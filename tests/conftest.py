@@ -13,16 +13,21 @@ from sims.terrain import TERRAINS, Terrain
 CELLS = list(itertools.product(available_sims(), available_robots(), TERRAINS))
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def make():
-    """Build a simulator and close it after the test."""
-    built = []
+    """A simulator per (engine, robot, terrain, seed), built once for the session.
+
+    Tests reset it before use and leave its dynamics nominal. Sharing matters for Newton,
+    whose solver setup takes seconds even with warp's kernel cache warm.
+    """
+    built: dict[tuple, object] = {}
 
     def _make(sim: str, robot: str, terrain: str = "flat", seed: int = 0):
-        s = make_sim(sim, load_robot(robot), Terrain(terrain, seed=seed))
-        built.append(s)
-        return s
+        key = (sim, robot, terrain, seed)
+        if key not in built:
+            built[key] = make_sim(sim, load_robot(robot), Terrain(terrain, seed=seed))
+        return built[key]
 
     yield _make
-    for s in built:
+    for s in built.values():
         s.close()

@@ -32,8 +32,8 @@ def test_run_table_is_readable():
 
 def test_list_names_everything():
     listing = json.loads(bench("list", "--json").stdout)
-    assert listing == {"sims": ["mujoco", "pybullet"], "robots": ["a1", "anymal"],
-                       "terrains": ["flat", "rough"], "policies": ["stand"]}
+    assert listing == {"sims": ["mujoco", "newton", "pybullet"], "robots": ["a1", "anymal"],
+                       "terrains": ["flat", "rough"], "policies": ["rl", "stand"]}
 
 
 def test_perf_reports_both_loops_and_their_ratio():
@@ -45,10 +45,10 @@ def test_perf_reports_both_loops_and_their_ratio():
 
 
 @pytest.mark.parametrize("args,expected", [
-    (["run", "--sim", "gazebo"], "unknown simulator 'gazebo'; valid: mujoco, pybullet"),
+    (["run", "--sim", "gazebo"], "unknown simulator 'gazebo'; valid: mujoco, newton, pybullet"),
     (["run", "--robot", "spot"], "unknown robot 'spot'; valid: a1, anymal"),
     (["run", "--terrain", "stairs"], "unknown terrain 'stairs'; valid: flat, rough"),
-    (["run", "--policy", "gpt9"], "unknown policy 'gpt9'; valid: stand"),
+    (["run", "--policy", "gpt9"], "unknown policy 'gpt9'; valid: rl, stand"),
     (["run", "--duration", "-1"], "argument --duration: must be > 0, got -1"),
     (["run", "--trials", "two"], "argument --trials: expected a int, got 'two'"),
     (["perf", "--sim", "gazebo"], "unknown simulator 'gazebo'"),

@@ -1,0 +1,80 @@
+"""The walking reward used to train the seed policies (see DESIGN.md section 5).
+
+A linear forward term saturating at the command makes the robot walk (exponential tracking
+alone gets stuck standing); feet air time rewards stepping over shuffling; heading and
+lateral terms stop sideways drift; the total is clipped at zero so that ending an episode
+early by falling is never better than staying up.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from robots import Robot
+from sims.base import RobotState
+
+
+@dataclass(frozen=True)
+class RewardWeights:
+    forward: float = 3.0  # x clip(vx / command_vx, -1, 1)
+    tracking: float = 1.0  # x exp(-(vx - command_vx)^2 / 0.25)
+    lateral: float = -1.0  # x vy^2
+    yaw_rate: float = -0.5  # x (wz - command_wz)^2
+    heading: float = -1.0  # x |yaw|, the world heading error
+    vertical: float = -2.0  # x vz^2
+    roll_pitch_rate: float = -0.05  # x (wx^2 + wy^2)
+    orientation: float = -2.0  # x (gx^2 + gy^2)
+    torque: float = -0.2  # x mean((tau / limit)^2)
+    action_rate: float = -0.02  # x mean((a - a_prev)^2)
+    air_time: float = 1.0  # x sum over touchdowns of (air time - air_time_target)
+    air_time_target: float = 0.2  # s: two control periods off the ground
+
+
+def yaw_of(quat_wxyz: np.ndarray) -> float:
+    w, x, y, z = quat_wxyz
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+class FeetAirTime:
+    """Seconds each foot has been in the air; reports the total air time of feet landing now."""
+
+    def __init__(self, num_feet: int = 4) -> None:
+        self.air = np.zeros(num_feet)
+        self.was_touching = np.ones(num_feet, dtype=bool)
+
+    def reset(self) -> None:
+        self.air[:] = 0.0
+        self.was_touching[:] = True
+
+    def update(self, touching: np.ndarray, dt: float, target: float) -> float:
+        landing = touching & ~self.was_touching
+        self.air += dt
+        reward = float(np.sum((self.air - target) * landing))
+        self.air[touching] = 0.0
+        self.was_touching = touching.copy()
+        return reward
+
+
+def walking_reward(state: RobotState, robot: Robot, command: np.ndarray, action: np.ndarray,
+                   last_action: np.ndarray, air_time_reward: float, w: RewardWeights) -> float:
+    vx, vy, vz = state.base_lin_vel
+    wx, wy, wz = state.base_ang_vel
+    gx, gy, _ = state.projected_gravity
+    cmd_vx = max(float(command[0]), 1e-3)
+    total = (
+        w.forward * float(np.clip(vx / cmd_vx, -1.0, 1.0))
+        + w.tracking * math.exp(-((vx - command[0]) ** 2) / 0.25)
+        + w.lateral * vy**2
+        + w.yaw_rate * (wz - command[2]) ** 2
+        + w.heading * abs(yaw_of(state.base_quat))
+        + w.vertical * vz**2
+        + w.roll_pitch_rate * (wx**2 + wy**2)
+        + w.orientation * (gx**2 + gy**2)
+        + w.torque * float(np.mean((state.joint_torque / robot.torque_limit) ** 2))
+        + w.action_rate * float(np.mean((action - last_action) ** 2))
+        + w.air_time * air_time_reward
+    )
+    return max(total, 0.0)

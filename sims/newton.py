@@ -1,0 +1,260 @@
+"""Newton backend (warp-lang), on CPU or CUDA, stepping many worlds at once.
+
+`NewtonWorlds` holds N copies of the robot (one per world, independent seeds) on one shared
+terrain and steps them in one solver call; `NewtonSim` is the one-world `Simulator`.
+Solvers (`--solver`): `mujoco` (default; Newton's SolverMuJoCo on mujoco_warp, stable on flat
+and rough ground) and `featherstone` (faster, but went to NaN on heightfields here). The PD
+law runs inside the solver as joint target stiffness/damping with the robot's torque limit
+as the effort limit; contact settings match the MuJoCo backend (implicitfast, pyramidal
+cone, impratio 10, self-collision off). Warp compiles its kernels on first use (30-90 s on
+CPU) into ~/.cache/warp; later runs load them in seconds.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+import warnings
+from collections.abc import Sequence
+
+import numpy as np
+
+from robots import Robot, UnknownNameError
+from sims.base import BodyPoses, Dynamics, PhysicsConfig, RobotState, initial_joint_pos, pd_torque, world_to_base
+from sims.mujoco import IMPRATIO
+from sims.terrain import Terrain
+
+SOLVERS = ("mujoco", "featherstone")
+
+
+def default_device() -> str:
+    import warp as wp
+
+    return "cuda" if wp.is_cuda_available() else "cpu"
+
+
+def _quiet_warp():
+    """Warp logs every kernel module it loads; keep warnings, drop the chatter."""
+    import warp as wp
+
+    wp.config.log_level = wp.LOG_WARNING
+    return wp
+
+
+class NewtonWorlds:
+    """N worlds, one robot each, stepped together."""
+
+    def __init__(self, robot: Robot, terrain: Terrain, physics: PhysicsConfig = PhysicsConfig(), worlds: int = 1,
+                 device: str | None = None, solver: str | None = None) -> None:
+        solver = solver or "mujoco"
+        if solver not in SOLVERS:
+            raise UnknownNameError("newton solver", solver, SOLVERS)
+        wp = _quiet_warp()
+        import newton
+
+        if device is not None and device not in ("cpu", "cuda") and not device.startswith("cuda:"):
+            raise ValueError(f"unknown device '{device}'; valid: cpu, cuda, cuda:N")
+        if device is not None and device.startswith("cuda") and not wp.is_cuda_available():
+            raise ValueError(f"device '{device}' requested but no CUDA device is available; valid: cpu")
+
+        self.robot, self.terrain, self.physics, self.worlds = robot, terrain, physics, worlds
+        self.device = device or default_device()
+        started = time.perf_counter()
+        print(f"newton: building {worlds} world(s) on {self.device} with {solver} "
+              "(first use compiles warp kernels, 30-90 s on CPU; cached afterwards)", file=sys.stderr)
+        one = newton.ModelBuilder()
+        newton.solvers.SolverMuJoCo.register_custom_attributes(one)
+        one.default_shape_cfg.mu = physics.friction
+        one.add_urdf(str(robot.urdf), xform=wp.transform(wp.vec3(0.0, 0.0, robot.init_height), wp.quat_identity()),
+                     floating=True, enable_self_collisions=False, collapse_fixed_joints=False,
+                     joint_damping_mode="passive")
+        names = [label.split("/")[-1] for label in one.joint_label]
+        self._q_idx = np.array([one.joint_q_start[names.index(j)] for j in robot.joints])
+        self._qd_idx = np.array([one.joint_qd_start[names.index(j)] for j in robot.joints])
+        for dof in self._qd_idx:
+            one.joint_target_ke[dof], one.joint_target_kd[dof] = robot.kp, robot.kd
+            one.joint_effort_limit[dof] = robot.torque_limit
+        bodies = [label.split("/")[-1] for label in one.body_label]
+        self._body_names = tuple(bodies)
+        self._bodies_per_world = len(bodies)
+        self._coords, self._dofs = one.joint_coord_count, one.joint_dof_count
+
+        scene = newton.ModelBuilder()
+        newton.solvers.SolverMuJoCo.register_custom_attributes(scene)
+        scene.default_shape_cfg.mu = physics.friction
+        scene.replicate(one, worlds)
+        self._add_terrain(scene, newton, wp)
+        scene.gravity = (0.0, 0.0, physics.gravity)
+        self.model = scene.finalize(device=self.device)
+        if solver == "mujoco":
+            with warnings.catch_warnings():  # mujoco_warp raises nconmax for heightfields and says so
+                warnings.filterwarnings("ignore", message=".*Value for nconmax is changed")
+                self.solver = newton.solvers.SolverMuJoCo(
+                    self.model, use_mujoco_contacts=True, nconmax=200, njmax=600, cone="pyramidal",
+                    impratio=IMPRATIO, integrator="implicitfast")
+        else:
+            self.solver = newton.solvers.SolverFeatherstone(self.model)
+        self._state, self._next = self.model.state(), self.model.state()
+        self.control = self.model.control()
+        self._com = self.model.body_com.numpy()[0].astype(np.float64)  # base COM in the base frame
+        self._geom_shape = getattr(self.solver, "mjc_geom_to_newton_shape", None)
+        shape_body = self.model.shape_body.numpy()
+        foot_bodies = [bodies.index(f) for f in robot.foot_links]
+        fall_bodies = [bodies.index(b) for b in robot.fall.contact_links]
+        local_body = np.where(shape_body >= 0, shape_body % self._bodies_per_world, -1)
+        self._shape_world = np.where(shape_body >= 0, shape_body // self._bodies_per_world, -1)
+        self._shape_foot = np.full(len(shape_body), -1)
+        for leg, body in enumerate(foot_bodies):
+            self._shape_foot[local_body == body] = leg
+        self._shape_falls = np.isin(local_body, fall_bodies) & (shape_body >= 0)
+        self._strength = np.ones(worlds)
+        self._targets = np.tile(robot.default_pose, (worlds, 1))
+        self.time = 0.0
+        self.reset(range(worlds))
+        self.step(self._targets)  # the first step compiles the solver's kernels
+        print(f"newton: ready in {time.perf_counter() - started:.1f} s", file=sys.stderr)
+
+    def _add_terrain(self, scene, newton, wp) -> None:
+        t = self.terrain
+        if t.is_flat:
+            scene.add_ground_plane()
+            return
+        heights = t.heights
+        rows, cols = heights.shape
+        field = newton.Heightfield(data=heights, nrow=rows, ncol=cols, hx=t.length / 2, hy=t.width / 2,
+                                   min_z=float(heights.min()), max_z=float(heights.max()))
+        scene.add_shape_heightfield(xform=wp.transform(wp.vec3(*t.center, 0.0), wp.quat_identity()),
+                                    heightfield=field)
+
+    # -- batch interface -------------------------------------------------------------------
+    def reset(self, seeds: Sequence[int]) -> None:
+        import newton
+
+        seeds = list(seeds)
+        q = self.model.joint_q.numpy().reshape(self.worlds, self._coords).astype(np.float64)
+        z = self.robot.init_height + self.terrain.height_at(0.0, 0.0)
+        q[:, :3] = [0.0, 0.0, z]
+        q[:, 3:7] = [0.0, 0.0, 0.0, 1.0]  # x, y, z, w
+        for w, seed in enumerate(seeds):
+            q[w, self._q_idx] = initial_joint_pos(self.robot, seed)
+        self._state.joint_q.assign(q.ravel().astype(np.float32))
+        self._state.joint_qd.zero_()
+        newton.eval_fk(self.model, self._state.joint_q, self._state.joint_qd, self._state)
+        self._targets = np.tile(self.robot.default_pose, (self.worlds, 1))
+        self._write_targets(self._targets)
+        self.time = 0.0
+
+    def _write_targets(self, targets: np.ndarray) -> None:
+        full = np.zeros((self.worlds, self._coords), dtype=np.float32)
+        full[:, self._q_idx] = targets
+        self.control.joint_target_q.assign(full.ravel())
+
+    def step(self, targets: np.ndarray) -> None:
+        """Advance every world one control period; `targets` is (worlds, 12), canonical order."""
+        self._targets = np.asarray(targets, dtype=np.float64).reshape(self.worlds, -1)
+        self._write_targets(self._targets)
+        for _ in range(self.physics.substeps):
+            self.solver.step(self._state, self._next, self.control, None, self.physics.dt)
+            self._state, self._next = self._next, self._state
+        self.time += self.physics.control_dt
+
+    def states(self) -> list[RobotState]:
+        """The RobotState of every world."""
+        body_q = self._state.body_q.numpy().reshape(self.worlds, self._bodies_per_world, 7)[:, 0].astype(np.float64)
+        body_qd = self._state.body_qd.numpy().reshape(self.worlds, self._bodies_per_world, 6)[:, 0].astype(np.float64)
+        q = self._state.joint_q.numpy().reshape(self.worlds, self._coords)[:, self._q_idx].astype(np.float64)
+        qd = self._state.joint_qd.numpy().reshape(self.worlds, self._dofs)[:, self._qd_idx].astype(np.float64)
+        feet, falls = self._contacts()
+        out = []
+        for w in range(self.worlds):
+            pos, quat_xyzw = body_q[w, :3], body_q[w, 3:]
+            quat = np.array([quat_xyzw[3], *quat_xyzw[:3]])
+            to_base = world_to_base(quat)
+            omega = body_qd[w, 3:]
+            v_origin = body_qd[w, :3] - np.cross(omega, to_base.T @ self._com)  # COM velocity -> origin
+            torque = pd_torque(self.robot, self._targets[w], q[w], qd[w], self._strength[w])
+            out.append(RobotState(
+                time=self.time, base_pos=pos, base_quat=quat, base_lin_vel=to_base @ v_origin,
+                base_ang_vel=to_base @ omega, projected_gravity=-to_base[:, 2], joint_pos=q[w], joint_vel=qd[w],
+                joint_torque=torque, foot_contact=feet[w], fall_contact=bool(falls[w])))
+        return out
+
+    def _contacts(self) -> tuple[np.ndarray, np.ndarray]:
+        feet = np.zeros((self.worlds, len(self.robot.foot_links)), dtype=bool)
+        falls = np.zeros(self.worlds, dtype=bool)
+        data = getattr(self.solver, "mjw_data", None)
+        if data is None or self._geom_shape is None:
+            return feet, falls
+        count = int(data.nacon.numpy()[0])
+        if count == 0:
+            return feet, falls
+        touching = data.contact.dist.numpy()[:count] <= 0.0  # the list also holds pairs within the margin
+        geoms = data.contact.geom.numpy()[:count][touching]
+        worlds = data.contact.worldid.numpy()[:count][touching]
+        geom_shape = self._geom_shape.numpy()
+        for world, (g1, g2) in zip(worlds, geoms):
+            s1, s2 = geom_shape[world, g1], geom_shape[world, g2]
+            if s1 < 0 or s2 < 0:
+                continue
+            robot_shape = s2 if self._shape_world[s1] < 0 else s1 if self._shape_world[s2] < 0 else -1
+            if robot_shape < 0:  # robot against robot: not a contact with the terrain
+                continue
+            leg = self._shape_foot[robot_shape]
+            if leg >= 0:
+                feet[self._shape_world[robot_shape], leg] = True
+            if self._shape_falls[robot_shape]:
+                falls[self._shape_world[robot_shape]] = True
+        return feet, falls
+
+    def body_poses(self, world: int = 0) -> BodyPoses:
+        body_q = self._state.body_q.numpy().reshape(self.worlds, self._bodies_per_world, 7)[world].astype(np.float64)
+        return BodyPoses(self._body_names, body_q[:, :3].copy(), body_q[:, [6, 3, 4, 5]].copy())
+
+
+class NewtonSim:
+    """One robot on one terrain in Newton: the `Simulator` protocol over a one-world NewtonWorlds."""
+
+    name = "newton"
+
+    def __init__(self, robot: Robot, terrain: Terrain, physics: PhysicsConfig = PhysicsConfig(),
+                 device: str | None = None, solver: str | None = None) -> None:
+        self.robot, self.terrain, self.physics = robot, terrain, physics
+        self.worlds = NewtonWorlds(robot, terrain, physics, 1, device, solver)
+
+    def reset(self, seed: int = 0) -> RobotState:
+        self.worlds.reset([seed])
+        return self.worlds.states()[0]
+
+    def step(self, joint_targets: np.ndarray) -> RobotState:
+        self.worlds.step(np.asarray(joint_targets)[None])
+        return self.worlds.states()[0]
+
+    def raw_loop(self, joint_targets: np.ndarray, control_steps: int) -> None:
+        w = self.worlds
+        w._write_targets(np.asarray(joint_targets)[None])
+        for _ in range(control_steps * self.physics.substeps):
+            w.solver.step(w._state, w._next, w.control, None, self.physics.dt)
+            w._state, w._next = w._next, w._state
+
+    def set_dynamics(self, dynamics: Dynamics) -> None:
+        raise NotImplementedError("domain randomization is not implemented for Newton yet")
+
+    def push_base(self, velocity_xy: np.ndarray) -> None:
+        raise NotImplementedError("pushes are not implemented for Newton yet")
+
+    def body_poses(self) -> BodyPoses:
+        return self.worlds.body_poses(0)
+
+    def ray_height(self, x: float, y: float) -> float:
+        """Terrain height under (x, y) in the MuJoCo model Newton's solver built (for tests)."""
+        import mujoco
+
+        model = self.worlds.solver.mj_model
+        data = mujoco.MjData(model)
+        mujoco.mj_kinematics(model, data)
+        geomid = np.zeros(1, dtype=np.int32)
+        dist = mujoco.mj_ray(model, data, np.array([x, y, 5.0]), np.array([0.0, 0.0, -1.0]), None, 1, -1, geomid)
+        return 5.0 - dist
+
+    def close(self) -> None:
+        pass

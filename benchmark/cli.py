@@ -5,6 +5,7 @@ Examples:
   bench run --sim pybullet --robot anymal      5 trials of 10 s, a table of metrics
   bench run --policy stand --duration 5 --json one JSON object on stdout
   bench perf --sim mujoco --robot a1           framework vs raw engine steps/s
+  bench perf --sim newton --worlds 64          1 world and 64 worlds per call
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from benchmark import __version__
 from benchmark.policies import available_policies, make_policy
 from benchmark.runner import EpisodeConfig, TrialResult, run_trial, summarize
 from robots import UnknownNameError, available_robots, load_robot
-from sims import available_sims, make_sim
+from sims import available_sims, make_sim, make_worlds
 from sims.terrain import TERRAINS, Terrain
 
 
@@ -53,6 +54,9 @@ def _add_cell_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--robot", default="a1", help=f"robot: {', '.join(available_robots())} (default a1)")
     parser.add_argument("--terrain", default="flat", help=f"terrain: {', '.join(TERRAINS)} (default flat)")
     parser.add_argument("--terrain-seed", type=int, default=0, help="seed of the rough heightfield (default 0)")
+    parser.add_argument("--device", default=None,
+                        help="newton only: cpu, cuda or cuda:N (default cuda when present, else cpu)")
+    parser.add_argument("--solver", default=None, help="newton only: mujoco (default) or featherstone")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -83,6 +87,17 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--ship", action="store_true", help="also write robots/ROBOT/policy.npz and policy.json")
     train.set_defaults(func=cmd_train)
 
+    base = sub.add_parser("baselines", help="evaluate the shipped seed policies in every cell -> reports/",
+                          description=__import__("benchmark.baselines", fromlist=["x"]).__doc__,
+                          formatter_class=argparse.RawDescriptionHelpFormatter)
+    base.add_argument("--sims", nargs="+", default=available_sims(), help="engines (default: all)")
+    base.add_argument("--robots", nargs="+", default=available_robots(), help="robots (default: all)")
+    base.add_argument("--terrains", nargs="+", default=list(TERRAINS), help="terrains (default: all)")
+    base.add_argument("--trials", type=_positive(int), default=5, help="trials per cell (default 5)")
+    base.add_argument("--duration", type=_positive(float), default=10.0, help="trial length in s (default 10)")
+    base.add_argument("--out", default="reports", help="folder for rl_baselines.csv and .md (default reports)")
+    base.set_defaults(func=cmd_baselines)
+
     lst = sub.add_parser("list", help="list engines, robots, terrains and policies")
     lst.add_argument("--json", action="store_true", help="print one JSON object")
     lst.set_defaults(func=cmd_list)
@@ -93,6 +108,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_cell_options(perf)
     perf.add_argument("--steps", type=_positive(int), default=500, help="control steps per round (default 500 = 50 s)")
     perf.add_argument("--rounds", type=_positive(int), default=3, help="alternating rounds; the best is kept (default 3)")
+    perf.add_argument("--worlds", type=_positive(int), default=None,
+                      help="batched engines (newton): also time N worlds stepped in one call, beside 1 world")
     perf.add_argument("--json", action="store_true", help="print one JSON object")
     perf.set_defaults(func=cmd_perf)
     return parser
@@ -110,7 +127,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     robot, terrain = _cell(args)
     policy = make_policy(args.policy, robot)
     config = EpisodeConfig(duration=args.duration)
-    sim = make_sim(args.sim, robot, terrain)
+    sim = make_sim(args.sim, robot, terrain, device=args.device, solver=args.solver)
     trials: list[TrialResult] = []
     try:
         for i in tqdm(range(args.trials), desc=f"{args.sim}/{args.robot}/{args.terrain}/{args.policy}",
@@ -154,6 +171,24 @@ def cmd_train(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_baselines(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from benchmark.baselines import run_baselines
+
+    for name in args.sims:
+        if name not in available_sims():
+            raise UnknownNameError("simulator", name, available_sims())
+    for name in args.robots:
+        load_robot(name)
+    for name in args.terrains:
+        Terrain(name)
+    command = "bench " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["baselines"] else "bench baselines"
+    path = run_baselines(args.sims, args.robots, args.terrains, args.trials, args.duration, Path(args.out), command)
+    print(path.read_text())
+    return 0
+
+
 def cmd_list(args: argparse.Namespace) -> int:
     listing = {"sims": available_sims(), "robots": available_robots(), "terrains": list(TERRAINS),
                "policies": available_policies()}
@@ -165,35 +200,66 @@ def cmd_list(args: argparse.Namespace) -> int:
     return 0
 
 
+def _time_loops(stepper, targets, steps: int, rounds: int, physics_steps: int, reset) -> tuple[float, float]:
+    """Best-of-`rounds` physics steps/s of the raw engine loop and of the framework's step."""
+    raw, framework = [], []
+    for _ in tqdm(range(rounds), desc="perf rounds", file=sys.stderr, disable=None, leave=False):
+        reset()
+        start = time.perf_counter()
+        stepper.raw_loop(targets, steps)
+        raw.append(physics_steps / (time.perf_counter() - start))
+        reset()
+        start = time.perf_counter()
+        for _ in range(steps):
+            stepper.step(targets)
+        framework.append(physics_steps / (time.perf_counter() - start))
+    return max(raw), max(framework)
+
+
+class _BatchStepper:
+    """Adapts a batched engine to _time_loops: a framework step also builds every world's state."""
+
+    def __init__(self, worlds) -> None:
+        self.worlds = worlds
+
+    def raw_loop(self, targets, steps: int) -> None:
+        self.worlds.raw_loop(targets, steps)
+
+    def step(self, targets) -> None:
+        self.worlds.step(targets)
+        self.worlds.states()
+
+
 def cmd_perf(args: argparse.Namespace) -> int:
     robot, terrain = _cell(args)
-    sim = make_sim(args.sim, robot, terrain)
-    targets = robot.default_pose
-    physics_steps = args.steps * sim.physics.substeps
-    raw, framework = [], []
+    rows = []
+    sim = make_sim(args.sim, robot, terrain, device=args.device, solver=args.solver)
     try:
-        for _ in tqdm(range(args.rounds), desc="perf rounds", file=sys.stderr, disable=None):
-            sim.reset(0)
-            start = time.perf_counter()
-            sim.raw_loop(targets, args.steps)
-            raw.append(physics_steps / (time.perf_counter() - start))
-            sim.reset(0)
-            start = time.perf_counter()
-            for _ in range(args.steps):
-                sim.step(targets)
-            framework.append(physics_steps / (time.perf_counter() - start))
+        steps = args.steps * sim.physics.substeps
+        raw, framework = _time_loops(sim, robot.default_pose, args.steps, args.rounds, steps, lambda: sim.reset(0))
+        rows.append({"worlds": 1, "raw_steps_per_s": raw, "framework_steps_per_s": framework})
     finally:
         sim.close()
+    if args.worlds is not None and args.worlds > 1:
+        worlds = make_worlds(args.sim, robot, terrain, args.worlds, device=args.device, solver=args.solver)
+        targets = np.tile(robot.default_pose, (args.worlds, 1))
+        steps = args.steps * worlds.physics.substeps * args.worlds  # env-steps: physics steps summed over worlds
+        raw, framework = _time_loops(_BatchStepper(worlds), targets, args.steps, args.rounds, steps,
+                                     lambda: worlds.reset(range(args.worlds)))
+        rows.append({"worlds": args.worlds, "raw_steps_per_s": raw, "framework_steps_per_s": framework})
+    for row in rows:
+        row["ratio"] = row["framework_steps_per_s"] / row["raw_steps_per_s"]
     result = {"sim": args.sim, "robot": args.robot, "terrain": args.terrain, "control_steps": args.steps,
-              "rounds": args.rounds, "raw_steps_per_s": max(raw), "framework_steps_per_s": max(framework),
-              "ratio": max(framework) / max(raw)}
+              "rounds": args.rounds, **rows[0], "by_worlds": rows}
     if args.json:
         print(json.dumps(result))
     else:
-        print(f"{args.sim} / {args.robot} / {args.terrain}: physics steps per second (best of {args.rounds})")
-        print(f"  raw engine loop   {result['raw_steps_per_s']:>10,.0f}")
-        print(f"  promptwalk sims   {result['framework_steps_per_s']:>10,.0f}")
-        print(f"  ratio             {result['ratio']:>10.3f}")
+        print(f"{args.sim} / {args.robot} / {args.terrain}: physics steps per second, summed over worlds "
+              f"(best of {args.rounds} rounds of {args.steps} control steps)")
+        print(f"{'worlds':>7} {'raw engine':>12} {'promptwalk':>12} {'ratio':>7}")
+        for row in rows:
+            print(f"{row['worlds']:>7} {row['raw_steps_per_s']:>12,.0f} {row['framework_steps_per_s']:>12,.0f} "
+                  f"{row['ratio']:>7.3f}")
     return 0
 
 

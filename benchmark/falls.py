@@ -4,15 +4,22 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from robots import Robot
 from sims.base import RobotState
 from sims.terrain import Terrain
+
+DIVERGED_SPEED = 50.0  # m/s: no legged robot moves its base this fast; the integration blew up
 
 
 def fall_reason(state: RobotState, robot: Robot, terrain: Terrain) -> str | None:
     """A short reason if `state` is a fall, else None."""
     if not state.is_finite():
-        return "non-finite state (simulation diverged)"
+        return "simulation diverged: non-finite state"
+    speed = float(np.linalg.norm(state.base_lin_vel))
+    if speed > DIVERGED_SPEED:
+        return f"simulation diverged: base speed {speed:.0f} m/s"
     if state.fall_contact:
         return "trunk touched the ground"
     x, y, z = state.base_pos

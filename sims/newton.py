@@ -108,6 +108,7 @@ class NewtonWorlds:
             self._shape_foot[local_body == body] = leg
         self._shape_falls = np.isin(local_body, fall_bodies) & (shape_body >= 0)
         self._strength = np.ones(worlds)
+        self._nominal_base_mass = float(self.model.body_mass.numpy()[0])
         self._targets = np.tile(robot.default_pose, (worlds, 1))
         self.time = 0.0
         self.reset(range(worlds))
@@ -157,6 +158,44 @@ class NewtonWorlds:
             self.solver.step(self._state, self._next, self.control, None, self.physics.dt)
             self._state, self._next = self._next, self._state
         self.time += self.physics.control_dt
+
+    def set_dynamics(self, dynamics: Dynamics) -> None:
+        """Friction, base mass and motor strength for every world (domain randomization)."""
+        import newton
+
+        model = self.model
+        mu = model.shape_material_mu.numpy()
+        mu[:] = dynamics.friction
+        model.shape_material_mu.assign(mu)
+        mass = model.body_mass.numpy()
+        base = np.arange(self.worlds) * self._bodies_per_world
+        mass[base] = self._nominal_base_mass * dynamics.base_mass_scale
+        model.body_mass.assign(mass)
+        inv_mass = model.body_inv_mass.numpy()
+        inv_mass[base] = 1.0 / mass[base]
+        model.body_inv_mass.assign(inv_mass)
+        dofs = (np.arange(self.worlds)[:, None] * self._dofs + self._qd_idx[None]).ravel()
+        for array, gain in ((model.joint_target_ke, self.robot.kp), (model.joint_target_kd, self.robot.kd)):
+            values = array.numpy()
+            values[dofs] = gain * dynamics.motor_strength
+            array.assign(values)
+        self._strength[:] = dynamics.motor_strength
+        flags = newton.ModelFlags
+        self.solver.notify_model_changed(flags.SHAPE_PROPERTIES | flags.BODY_INERTIAL_PROPERTIES
+                                         | flags.JOINT_DOF_PROPERTIES)
+
+    def push_base(self, velocity_xy: np.ndarray) -> None:
+        """Add a horizontal velocity to every world's base."""
+        qd = self._state.joint_qd.numpy().reshape(self.worlds, self._dofs)
+        qd[:, :2] += np.asarray(velocity_xy, dtype=np.float32)
+        self._state.joint_qd.assign(qd.ravel())
+
+    def raw_loop(self, targets: np.ndarray, control_steps: int) -> None:
+        """The bare solver loop on the same model, as the speed reference for `bench perf`."""
+        self._write_targets(np.asarray(targets, dtype=np.float64).reshape(self.worlds, -1))
+        for _ in range(control_steps * self.physics.substeps):
+            self.solver.step(self._state, self._next, self.control, None, self.physics.dt)
+            self._state, self._next = self._next, self._state
 
     def states(self) -> list[RobotState]:
         """The RobotState of every world."""
@@ -230,17 +269,13 @@ class NewtonSim:
         return self.worlds.states()[0]
 
     def raw_loop(self, joint_targets: np.ndarray, control_steps: int) -> None:
-        w = self.worlds
-        w._write_targets(np.asarray(joint_targets)[None])
-        for _ in range(control_steps * self.physics.substeps):
-            w.solver.step(w._state, w._next, w.control, None, self.physics.dt)
-            w._state, w._next = w._next, w._state
+        self.worlds.raw_loop(np.asarray(joint_targets)[None], control_steps)
 
     def set_dynamics(self, dynamics: Dynamics) -> None:
-        raise NotImplementedError("domain randomization is not implemented for Newton yet")
+        self.worlds.set_dynamics(dynamics)
 
     def push_base(self, velocity_xy: np.ndarray) -> None:
-        raise NotImplementedError("pushes are not implemented for Newton yet")
+        self.worlds.push_base(velocity_xy)
 
     def body_poses(self) -> BodyPoses:
         return self.worlds.body_poses(0)

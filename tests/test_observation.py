@@ -45,3 +45,4 @@ def test_fall_reasons():
     tilted = np.array([np.sin(np.radians(70)), 0.0, -np.cos(np.radians(70))])
     assert "tilted 70" in fall_reason(_state(projected_gravity=tilted), robot, flat)
     assert "non-finite" in fall_reason(_state(joint_vel=np.full(12, np.nan)), robot, flat)
+    assert "diverged: base speed 80" in fall_reason(_state(base_lin_vel=np.array([80.0, 0, 0])), robot, flat)

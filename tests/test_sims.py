@@ -11,7 +11,7 @@ from benchmark.policies import StandPolicy
 from benchmark.runner import EpisodeConfig, run_trial
 from robots import LEGS, available_robots, load_robot
 from sims import available_sims, make_sim
-from sims.base import world_to_base
+from sims.base import PhysicsConfig, world_to_base
 from sims.terrain import Terrain
 
 from conftest import CELLS
@@ -108,3 +108,16 @@ def test_seeds_perturb_the_initial_pose_reproducibly(make, sim_name):
     a, b, c = sim.reset(1).joint_pos, sim.reset(2).joint_pos, sim.reset(1).joint_pos
     np.testing.assert_allclose(a, c)
     assert not np.allclose(a, b)
+
+
+@pytest.mark.parametrize("sim_name", available_sims())
+def test_an_exploding_simulation_is_a_failed_trial_with_a_reason(sim_name):
+    """Absurd gains at a coarse timestep blow the integration up: reported, never a crash."""
+    robot = dataclasses.replace(load_robot("a1"), kp=5000.0, kd=0.0, torque_limit=1e6)
+    sim = make_sim(sim_name, robot, Terrain("flat"), PhysicsConfig(dt=0.02, substeps=5))
+    try:
+        result = run_trial(sim, robot, sim.terrain, StandPolicy(robot), EpisodeConfig(duration=3.0), seed=0)
+    finally:
+        sim.close()
+    assert not result.success and result.fall_time is not None and result.fall_time < 3.0
+    assert result.fall_reason

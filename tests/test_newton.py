@@ -1,0 +1,61 @@
+"""Newton specifics: many worlds per call, devices, and agreement with MuJoCo."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from robots import load_robot
+from sims import make_sim, make_worlds
+from sims.terrain import Terrain
+
+
+def test_worlds_step_independently_with_their_own_seeds():
+    robot = load_robot("a1")
+    worlds = make_worlds("newton", robot, Terrain("flat"), worlds=3)
+    worlds.reset([0, 1, 0])
+    states = worlds.states()
+    np.testing.assert_allclose(states[0].joint_pos, states[2].joint_pos, atol=1e-6)
+    assert not np.allclose(states[0].joint_pos, states[1].joint_pos, atol=1e-3)
+    targets = np.tile(robot.default_pose, (3, 1))
+    targets[1, 1] += 0.4  # only world 1's FR thigh moves
+    for _ in range(5):
+        worlds.step(targets)
+    after = worlds.states()
+    assert after[1].joint_pos[1] - after[0].joint_pos[1] > 0.2
+    np.testing.assert_allclose(after[0].joint_pos, after[2].joint_pos, atol=1e-4)
+    assert all(s.foot_contact.all() and not s.fall_contact for s in (after[0], after[2]))
+
+
+def test_standing_matches_mujoco_within_3_cm(make):
+    heights = {}
+    for engine in ("mujoco", "newton"):
+        sim = make(engine, "anymal", "rough")
+        state = sim.reset(0)
+        for _ in range(30):
+            state = sim.step(sim.robot.default_pose)
+        heights[engine] = state.base_pos[2]
+    assert abs(heights["mujoco"] - heights["newton"]) < 0.03, heights
+
+
+def test_devices_and_solvers_are_checked():
+    robot, flat = load_robot("a1"), Terrain("flat")
+    with pytest.raises(ValueError, match="runs on cpu only"):
+        make_sim("mujoco", robot, flat, device="cuda")
+    with pytest.raises(ValueError, match="unknown newton solver 'xpbd'; valid: featherstone, mujoco"):
+        make_sim("newton", robot, flat, solver="xpbd")
+    with pytest.raises(ValueError, match="steps one world"):
+        make_worlds("pybullet", robot, flat, worlds=2)
+
+
+def test_perf_reports_one_and_many_worlds():
+    out = subprocess.run([sys.executable, "-m", "benchmark.cli", "perf", "--sim", "newton", "--worlds", "4",
+                          "--steps", "3", "--rounds", "1", "--json"], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr
+    result = json.loads(out.stdout)
+    assert [row["worlds"] for row in result["by_worlds"]] == [1, 4]
+    assert all(row["raw_steps_per_s"] > 0 and row["framework_steps_per_s"] > 0 for row in result["by_worlds"])

@@ -1,6 +1,8 @@
 """`bench`: run, compare and time legged-robot controllers across physics engines.
 
 Examples:
+  bench run                                    the main job: the embedded LLM walks A1 in MuJoCo
+  bench run --policy rl                        the seed PPO policy alone
   bench list                                   what engines, robots, terrains and policies exist
   bench run --sim pybullet --robot anymal      5 trials of 10 s, a table of metrics
   bench run --policy stand --duration 5 --json one JSON object on stdout
@@ -19,6 +21,7 @@ import numpy as np
 from tqdm import tqdm
 
 from benchmark import __version__
+from benchmark.llm.models import LLMError
 from benchmark.policies import available_policies, make_policy
 from benchmark.runner import EpisodeConfig, TrialResult, run_trial, summarize
 from robots import UnknownNameError, available_robots, load_robot
@@ -59,6 +62,49 @@ def _add_cell_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--solver", default=None, help="newton only: mujoco (default) or featherstone")
 
 
+def _add_llm_options(parser: argparse.ArgumentParser) -> None:
+    from benchmark.llm.encodings import DEFAULT_ENCODING, ENCODINGS
+    from benchmark.llm.observations import DEFAULT_OBSERVATION, OBSERVATIONS
+    from benchmark.llm.prompt import PARTS
+
+    g = parser.add_argument_group("LLM policy (--policy llm)")
+    g.add_argument("--llm", default="embedded",
+                   help="model: embedded (Gemma 3 270M, offline), embedded:PATH.gguf, or openai:MODEL")
+    g.add_argument("--llm-url", default=None, help="OpenAI-compatible base URL, e.g. http://127.0.0.1:8080/v1 "
+                                                   "(or PROMPTWALK_LLM_URL); the key comes from PROMPTWALK_LLM_API_KEY "
+                                                   "or OPENAI_API_KEY and is never printed")
+    g.add_argument("--llm-api", default="completions", choices=("completions", "chat"), help="endpoint kind")
+    g.add_argument("--llm-after", type=float, default=10.0, help="s: the LLM takes over (default 10)")
+    g.add_argument("--seed-start", type=float, default=1.0, help="s: the seed policy starts filling the history")
+    g.add_argument("--history", type=int, default=50, help="observation/action pairs in the prompt (default 50)")
+    g.add_argument("--history-mode", default="sliding", choices=("sliding", "block"),
+                   help="sliding window, or grow-then-cut-in-blocks (keeps llama.cpp's prompt cache warm)")
+    g.add_argument("--prompt-parts", nargs="*", default=list(PARTS), help=f"description parts: {' '.join(PARTS)}")
+    g.add_argument("--encoding", default=DEFAULT_ENCODING,
+                   help="numbers: " + "; ".join(f"{k} {e.title}" for k, e in ENCODINGS.items()))
+    g.add_argument("--observation", default=DEFAULT_OBSERVATION,
+                   help="prompt inputs: " + "; ".join(f"{k} {v[0]}" for k, v in OBSERVATIONS.items()))
+    g.add_argument("--unconstrained", action="store_true", help="no grammar/schema on the reply (as in the paper)")
+    g.add_argument("--temperature", type=float, default=0.0, help="sampling temperature (default 0)")
+    g.add_argument("--no-cache", action="store_true", help="do not read or write the on-disk reply cache")
+    g.add_argument("--price-in", type=float, default=None, help="USD per 1M input tokens, for a cost estimate")
+    g.add_argument("--price-out", type=float, default=None, help="USD per 1M output tokens")
+    g.add_argument("--threads", type=int, default=None, help="llama.cpp threads (default: free cores)")
+
+
+def _llm_config(args: argparse.Namespace):
+    from benchmark.llm.models import Sampling
+    from benchmark.llm.policy import LLMConfig
+    from benchmark.llm.prompt import PromptConfig
+
+    prompt = PromptConfig(parts=tuple(args.prompt_parts), history=args.history, encoding=args.encoding,
+                          observation=args.observation)
+    return LLMConfig(model=args.llm, url=args.llm_url, api=args.llm_api, prompt=prompt, seed_start=args.seed_start,
+                     llm_after=args.llm_after, history_mode=args.history_mode, constrained=not args.unconstrained,
+                     sampling=Sampling(temperature=args.temperature), price_in=args.price_in,
+                     price_out=args.price_out, cache=not args.no_cache, threads=args.threads)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="bench", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"promptwalk {__version__}")
@@ -68,9 +114,11 @@ def build_parser() -> argparse.ArgumentParser:
                          description="Run trials and report normalized walking time (NWT), success, "
                                      "distance and velocity per trial and on average.")
     _add_cell_options(run)
-    run.add_argument("--policy", default="stand", help=f"controller: {', '.join(available_policies())} (default stand)")
+    run.add_argument("--policy", default="llm", help=f"controller: {', '.join(available_policies())} (default llm)")
     run.add_argument("--trials", type=_positive(int), default=5, help="number of trials (default 5, as in the paper)")
-    run.add_argument("--duration", type=_positive(float), default=10.0, help="episode length in s (default 10)")
+    run.add_argument("--duration", type=_positive(float), default=None,
+                     help="episode length in s (default 20 for llm, the paper's episode; else 10)")
+    _add_llm_options(run)
     run.add_argument("--seed", type=int, default=0, help="seed of the first trial; trial i uses seed+i (default 0)")
     run.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     run.set_defaults(func=cmd_run)
@@ -97,6 +145,17 @@ def build_parser() -> argparse.ArgumentParser:
     base.add_argument("--duration", type=_positive(float), default=10.0, help="trial length in s (default 10)")
     base.add_argument("--out", default="reports", help="folder for rl_baselines.csv and .md (default reports)")
     base.set_defaults(func=cmd_baselines)
+
+    prompt = sub.add_parser("prompt", help="print a real LLM prompt (from a seed-policy rollout) and its token count",
+                            description="Walks the seed policy in MuJoCo for 1 s standing plus HISTORY steps, then "
+                                        "prints the prompt the LLM would get at that moment, and its length in tokens.")
+    prompt.add_argument("--robot", default="a1", help=f"robot: {', '.join(available_robots())} (default a1)")
+    prompt.add_argument("--tokenizer", default="gpt-4", choices=("gpt-4", "embedded"),
+                        help="count with GPT-4's cl100k (offline) or the embedded model's tokenizer")
+    prompt.add_argument("--seed", type=int, default=0, help="trial seed of the rollout")
+    prompt.add_argument("--json", action="store_true", help="print one JSON object")
+    _add_llm_options(prompt)
+    prompt.set_defaults(func=cmd_prompt)
 
     lst = sub.add_parser("list", help="list engines, robots, terrains and policies")
     lst.add_argument("--json", action="store_true", help="print one JSON object")
@@ -125,24 +184,60 @@ def _cell(args: argparse.Namespace):
 
 def cmd_run(args: argparse.Namespace) -> int:
     robot, terrain = _cell(args)
-    policy = make_policy(args.policy, robot)
-    config = EpisodeConfig(duration=args.duration)
+    llm = args.policy == "llm"
+    duration = args.duration or (20.0 if llm else 10.0)
+    options, eval_start = {}, 0.0
+    if llm:
+        config = _llm_config(args)
+        if config.llm_after >= duration:
+            raise CliError(f"--llm-after ({config.llm_after:g} s) must be before the end of the episode "
+                           f"(--duration {duration:g} s)")
+        options, eval_start = {"config": config}, config.llm_after
+    episode = EpisodeConfig(duration=duration, eval_start=eval_start)
+    policy = make_policy(args.policy, robot, **options)
     sim = make_sim(args.sim, robot, terrain, device=args.device, solver=args.solver)
     trials: list[TrialResult] = []
+    error = None
     try:
         for i in tqdm(range(args.trials), desc=f"{args.sim}/{args.robot}/{args.terrain}/{args.policy}",
                       unit="trial", file=sys.stderr, disable=None):
-            trials.append(run_trial(sim, robot, terrain, policy, config, seed=args.seed + i))
+            trials.append(run_trial(sim, robot, terrain, policy, episode, seed=args.seed + i,
+                                    on_step=_llm_progress(policy, episode) if llm else None))
+    except LLMError as err:  # keep what finished: report it, then the error
+        error = err
     finally:
         sim.close()
+        getattr(getattr(policy, "model", None), "close", lambda: None)()
     result = {"sim": args.sim, "robot": args.robot, "terrain": args.terrain, "terrain_seed": args.terrain_seed,
-              "policy": args.policy, "duration": args.duration, "seed": args.seed,
+              "policy": args.policy, "duration": duration, "eval_start": eval_start, "seed": args.seed,
               "trials": [t.to_dict() for t in trials], **summarize(trials)}
+    if llm:
+        result["llm"] = {"model": args.llm, "url": args.llm_url, "api": args.llm_api, "history": args.history,
+                         "history_mode": args.history_mode, "encoding": args.encoding,
+                         "observation": args.observation, "prompt_parts": args.prompt_parts,
+                         "constrained": not args.unconstrained}
     if args.json:
         print(json.dumps(result))
     else:
         _print_run_table(result)
+    if error is not None:
+        print(f"bench: error: {error} ({len(trials)} finished trial(s) reported above)", file=sys.stderr)
+        return 1
     return 0
+
+
+def _llm_progress(policy, episode: EpisodeConfig):
+    """A progress bar over the LLM queries of one trial."""
+    total = int(round((episode.duration - episode.eval_start) / 0.1))
+    bar = tqdm(total=total, desc="LLM queries", unit="query", file=sys.stderr, disable=None, leave=False)
+
+    def update(loop) -> None:
+        bar.n = len(policy.queries)
+        bar.refresh()
+        if loop.time >= episode.duration - 1e-9 or loop.fall is not None:
+            bar.close()
+
+    return update
 
 
 def _print_run_table(result: dict) -> None:
@@ -155,6 +250,16 @@ def _print_run_table(result: dict) -> None:
               f"{t['mean_vx']:>7.2f} {t['lateral_drift_m']:>8.2f}  {fall}")
     print(f"mean NWT {result['nwt']:.3f}, success rate {result['success_rate']:.2f}, "
           f"distance {result['distance_m']:.2f} m, vx {result['mean_vx']:.2f} m/s")
+    llm_trials = [t for t in result["trials"] if t.get("queries")]
+    if llm_trials:
+        print(f"{'seed':>4} {'queries':>7} {'unparsed':>8} {'tokens in/out':>14} {'gpt-4 in/out':>13} "
+              f"{'latency s':>10} {'p95 s':>6} {'RTF':>6}")
+        for t in llm_trials:
+            rtf = f"{t['realtime_factor']:.3f}" if t.get("realtime_factor") else "-"
+            print(f"{t['seed']:>4} {t['queries']:>7} {t['parse_failures']:>8} "
+                  f"{t['input_tokens']:>8.0f}/{t['output_tokens']:<5.0f} "
+                  f"{t['gpt4_input_tokens']:>7.0f}/{t['gpt4_output_tokens']:<5.0f} "
+                  f"{t['latency_mean_s']:>10.2f} {t['latency_p95_s']:>6.2f} {rtf:>6}")
 
 
 def cmd_train(args: argparse.Namespace) -> int:
@@ -186,6 +291,44 @@ def cmd_baselines(args: argparse.Namespace) -> int:
     command = "bench " + " ".join(sys.argv[1:]) if sys.argv[1:2] == ["baselines"] else "bench baselines"
     path = run_baselines(args.sims, args.robots, args.terrains, args.trials, args.duration, Path(args.out), command)
     print(path.read_text())
+    return 0
+
+
+def cmd_prompt(args: argparse.Namespace) -> int:
+    from benchmark.control import ControlLoop
+    from benchmark.llm.prompt import build_prompt, describe_robot
+    from benchmark.llm.tokens import gpt4_tokens, server_tokens
+    from benchmark.observation import llm_observation
+    from benchmark.policies import RLPolicy
+
+    robot = load_robot(args.robot)
+    config = _llm_config(args)
+    sim = make_sim("mujoco", robot, Terrain("flat"))
+    seed_policy, loop, pairs = RLPolicy(robot), ControlLoop(sim, robot, Terrain("flat")), []
+    loop.reset(args.seed)
+    for _ in range(int(round(config.seed_start / loop.dt)) + config.prompt.history):
+        action = seed_policy.act(loop.obs, loop.state) if loop.time >= config.seed_start - 1e-9 else np.zeros(12)
+        if loop.time >= config.seed_start - 1e-9:
+            pairs.append((llm_observation(loop.obs), action))
+        loop.step(action)
+    window = pairs[len(pairs) - config.prompt.history:] if config.prompt.history else []
+    text = build_prompt(describe_robot(robot, config.prompt), window, llm_observation(loop.obs), config.prompt)
+    if args.tokenizer == "gpt-4":
+        tokens = gpt4_tokens(text)
+    else:
+        from benchmark.llm.models import EmbeddedModel
+
+        model = EmbeddedModel(args.llm.partition(":")[2] or None, threads=args.threads)
+        tokens = server_tokens(model.url, text)
+        model.close()
+    if args.json:
+        print(json.dumps({"robot": args.robot, "history": config.prompt.history, "encoding": args.encoding,
+                          "observation": args.observation, "prompt_parts": args.prompt_parts,
+                          "tokenizer": args.tokenizer, "tokens": tokens, "prompt": text}))
+    else:
+        print(text)
+        print(f"\n[{tokens} tokens ({args.tokenizer}), history {config.prompt.history}, encoding {args.encoding}]",
+              file=sys.stderr)
     return 0
 
 

@@ -24,6 +24,9 @@ class Policy(Protocol):
     def act(self, obs: np.ndarray, state: RobotState) -> np.ndarray:
         """Normalized actions (12,) for the 48-dim observation `obs` of `state`."""
 
+    def metrics(self) -> dict:
+        """Policy-specific figures for the trial just run (tokens, latency ...); may be empty."""
+
 
 class StandPolicy:
     """Holds the default pose: the baseline every other policy must beat."""
@@ -38,6 +41,9 @@ class StandPolicy:
 
     def act(self, obs: np.ndarray, state: RobotState) -> np.ndarray:
         return self._zeros
+
+    def metrics(self) -> dict:
+        return {}
 
 
 class RLPolicy:
@@ -60,8 +66,17 @@ class RLPolicy:
     def act(self, obs: np.ndarray, state: RobotState) -> np.ndarray:
         return self.actor(obs)
 
+    def metrics(self) -> dict:
+        return {}
 
-POLICIES: dict[str, Callable[..., Policy]] = {"stand": StandPolicy, "rl": RLPolicy}
+
+def _llm_policy(robot: Robot, **options) -> Policy:
+    from benchmark.llm.policy import LLMPolicy
+
+    return LLMPolicy(robot, **options)
+
+
+POLICIES: dict[str, Callable[..., Policy]] = {"stand": StandPolicy, "rl": RLPolicy, "llm": _llm_policy}
 
 
 def available_policies() -> list[str]:

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
@@ -45,9 +45,13 @@ class TrialResult:
     fall_reason: str | None
     control_steps: int
     wall_s: float
+    policy_metrics: dict = field(default_factory=dict)  # e.g. the LLM's tokens, latency, parse failures
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        """Flat: policy metrics sit beside the trial metrics."""
+        out = asdict(self)
+        extra = out.pop("policy_metrics")
+        return {**out, **extra}
 
 
 StepCallback = Callable[[ControlLoop], None]
@@ -95,6 +99,7 @@ def run_trial(sim: Simulator, robot: Robot, terrain: Terrain, policy: Policy, co
         fall_reason=loop.fall,
         control_steps=loop.steps,
         wall_s=time.perf_counter() - start,
+        policy_metrics=policy.metrics(),
     )
 
 

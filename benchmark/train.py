@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import csv
 import json
+from dataclasses import asdict, fields, replace
 import platform
 import sys
 import time
@@ -21,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmark.mlp import MlpActor
+from benchmark.rewards import RewardWeights
 from benchmark.runner import EpisodeConfig, run_trial
 from robots import ROBOTS_DIR, load_robot
 from sims import make_sim
@@ -56,7 +58,17 @@ def evaluate(actor: MlpActor, robot_name: str, sim_name: str, terrain: str, seed
         sim.close()
 
 
-def train(robot: str, sim: str, steps: int, seed: int, out: Path, eval_every: int, ship: bool) -> Path:
+def reward_weights(overrides: dict[str, float] | None = None) -> RewardWeights:
+    """The default reward weights with `overrides` (e.g. {"yaw_rate": -2.0}) applied."""
+    known = {f.name for f in fields(RewardWeights)}
+    unknown = sorted(set(overrides or {}) - known)
+    if unknown:
+        raise ValueError(f"unknown reward term '{unknown[0]}'; valid: {', '.join(sorted(known))}")
+    return replace(RewardWeights(), **(overrides or {}))
+
+
+def train(robot: str, sim: str, steps: int, seed: int, out: Path, eval_every: int, ship: bool,
+          rewards: RewardWeights = RewardWeights()) -> Path:
     import torch
     import torch.nn as nn
     from stable_baselines3 import PPO
@@ -70,7 +82,7 @@ def train(robot: str, sim: str, steps: int, seed: int, out: Path, eval_every: in
     out.mkdir(parents=True, exist_ok=True)
 
     def make(i: int):
-        return lambda: LocomotionEnv(robot, sim, "flat" if i % 2 == 0 else "rough", terrain_seed=i)
+        return lambda: LocomotionEnv(robot, sim, "flat" if i % 2 == 0 else "rough", terrain_seed=i, rewards=rewards)
 
     vec = VecMonitor(DummyVecEnv([make(i) for i in range(NUM_ENVS)]))
     vec.seed(seed)
@@ -89,7 +101,7 @@ def train(robot: str, sim: str, steps: int, seed: int, out: Path, eval_every: in
                 "wall_s": round(time.perf_counter() - started, 1), "command": command,
                 "versions": {"python": platform.python_version(), "torch": torch.__version__,
                              "stable_baselines3": stable_baselines3.__version__, "gymnasium": gymnasium.__version__,
-                             "mujoco": mujoco.__version__}, "ppo": PPO_SETTINGS, "net": NET["pi"]}
+                             "mujoco": mujoco.__version__}, "ppo": PPO_SETTINGS, "net": NET["pi"], "rewards": asdict(rewards)}
 
     log_path = out / "train_log.csv"
     fields = ["env_steps", "wall_s", "ep_reward_mean", "ep_len_mean", "eval_nwt", "eval_distance_m", "eval_vx",
@@ -129,8 +141,19 @@ def train(robot: str, sim: str, steps: int, seed: int, out: Path, eval_every: in
     model.learn(total_timesteps=steps, callback=Progress())
     actor = export_actor(model, meta(model.num_timesteps))
     actor.save(out / "policy.npz")
+    model.save(out / "ppo_model.zip")  # the full SB3 model (optimizer included), to resume; not shipped
     vec.close()
     if ship:
-        actor.save(ROBOTS_DIR / robot / "policy.npz")
-        (ROBOTS_DIR / robot / "policy.json").write_text(json.dumps(actor.meta, indent=2) + "\n")
+        ship_policy(out / "policy.npz", robot)
     return out / "policy.npz"
+
+
+def ship_policy(path: Path, robot: str) -> Path:
+    """Install a trained actor as `robots/<robot>/policy.npz`, its metadata beside it as policy.json."""
+    actor = MlpActor.load(path)
+    if actor.meta.get("robot") != robot:
+        raise ValueError(f"{path} was trained for robot '{actor.meta.get('robot')}', not '{robot}'")
+    target = ROBOTS_DIR / robot / "policy.npz"
+    actor.save(target)
+    (ROBOTS_DIR / robot / "policy.json").write_text(json.dumps(actor.meta, indent=2) + "\n")
+    return target

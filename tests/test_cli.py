@@ -25,7 +25,7 @@ def test_run_json_reports_trials_and_means():
 
 
 def test_run_table_is_readable():
-    out = bench("run", "--trials", "1", "--duration", "1")
+    out = bench("run", "--policy", "stand", "--trials", "1", "--duration", "1")
     assert out.returncode == 0, out.stderr
     assert "mean NWT 1.000, success rate 1.00" in out.stdout
 
@@ -33,7 +33,7 @@ def test_run_table_is_readable():
 def test_list_names_everything():
     listing = json.loads(bench("list", "--json").stdout)
     assert listing == {"sims": ["mujoco", "newton", "pybullet"], "robots": ["a1", "anymal"],
-                       "terrains": ["flat", "rough"], "policies": ["rl", "stand"]}
+                       "terrains": ["flat", "rough"], "policies": ["llm", "rl", "stand"]}
 
 
 def test_perf_reports_both_loops_and_their_ratio():
@@ -48,7 +48,11 @@ def test_perf_reports_both_loops_and_their_ratio():
     (["run", "--sim", "gazebo"], "unknown simulator 'gazebo'; valid: mujoco, newton, pybullet"),
     (["run", "--robot", "spot"], "unknown robot 'spot'; valid: a1, anymal"),
     (["run", "--terrain", "stairs"], "unknown terrain 'stairs'; valid: flat, rough"),
-    (["run", "--policy", "gpt9"], "unknown policy 'gpt9'; valid: rl, stand"),
+    (["run", "--policy", "gpt9"], "unknown policy 'gpt9'; valid: llm, rl, stand"),
+    (["run", "--duration", "5"], "--llm-after (10 s) must be before the end of the episode (--duration 5 s)"),
+    (["run", "--encoding", "E9"], "unknown encoding 'E9'; valid: E1, E2, E3, E4, E5"),
+    (["run", "--llm", "gpt5"], "unknown model 'gpt5'; valid: embedded, embedded:PATH.gguf, openai:MODEL"),
+    (["train", "--reward", "speed=2"], "unknown reward term 'speed'"),
     (["run", "--duration", "-1"], "argument --duration: must be > 0, got -1"),
     (["run", "--trials", "two"], "argument --trials: expected a int, got 'two'"),
     (["perf", "--sim", "gazebo"], "unknown simulator 'gazebo'"),

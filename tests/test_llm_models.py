@@ -140,7 +140,9 @@ def test_llm_run_end_to_end_on_the_embedded_model(tmp_path, monkeypatch):
                                "--llm-after", "2", "--trials", "1", "--threads", "1", "--json"])
     assert code == 0, err
     trial = json.loads(out)["trials"][0]
-    assert trial["queries"] == 5 and trial["parse_failures"] == 0
+    # One query per control step of the LLM phase (2.0-2.5 s), fewer only if the robot fell.
+    expected = 5 if trial["success"] else round((trial["fall_time"] - 2.0) / 0.1)
+    assert trial["queries"] == expected >= 1 and trial["parse_failures"] == 0
     assert trial["input_tokens"] > trial["gpt4_input_tokens"] > 1000  # 10 pairs of history, Gemma counts more
     assert trial["output_tokens"] > 12 and trial["latency_p95_s"] >= trial["latency_mean_s"] > 0
     assert trial["realtime_factor"] == pytest.approx(0.1 / trial["latency_mean_s"])
@@ -148,7 +150,7 @@ def test_llm_run_end_to_end_on_the_embedded_model(tmp_path, monkeypatch):
     code, again, _ = _run_cli(["run", "--sim", "mujoco", "--robot", "a1", "--policy", "llm", "--duration", "2.5",
                                "--llm-after", "2", "--trials", "1", "--threads", "1", "--json"])
     repeat = json.loads(again)["trials"][0]
-    assert repeat["cache_hits"] == 5 and repeat["distance_m"] == trial["distance_m"]
+    assert repeat["cache_hits"] == trial["queries"] and repeat["distance_m"] == trial["distance_m"]
 
 
 def test_server_dying_mid_run_keeps_finished_trials_and_never_prints_the_key(embedded, tmp_path, monkeypatch):

@@ -121,7 +121,16 @@ def build_parser() -> argparse.ArgumentParser:
     _add_llm_options(run)
     run.add_argument("--seed", type=int, default=0, help="seed of the first trial; trial i uses seed+i (default 0)")
     run.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    run.add_argument("--record", default=None, metavar="PATH.rrd",
+                     help="write a Rerun recording (several trials: PATH-seedN.rrd); open with bench view")
+    run.add_argument("--record-dir", default=None, metavar="DIR",
+                     help="write one recording per trial into DIR, named by cell and seed")
     run.set_defaults(func=cmd_run)
+
+    view = sub.add_parser("view", help="open a recording in the Rerun viewer",
+                          description="Launches the Rerun viewer (the `rerun` command of rerun-sdk) on the file.")
+    view.add_argument("path", help="an .rrd file written by bench run --record")
+    view.set_defaults(func=cmd_view)
 
     train = sub.add_parser("train", help="train a seed policy with stable-baselines3 PPO (CPU, minutes)",
                            description=__import__("benchmark.train", fromlist=["x"]).__doc__,
@@ -133,6 +142,7 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--out", default=None, help="folder for train_log.csv and policy.npz (default runs/train-ROBOT)")
     train.add_argument("--eval-every", type=_positive(int), default=50_000, help="steps between evaluations")
     train.add_argument("--ship", action="store_true", help="also write robots/ROBOT/policy.npz and policy.json")
+    train.add_argument("--init-from", default=None, help="warm start the actor from a policy.npz (fine-tuning)")
     train.add_argument("--reward", nargs="*", default=[], metavar="TERM=WEIGHT",
                        help="override reward weights, e.g. yaw_rate=-2 heading=-2 (see benchmark/rewards.py)")
     train.set_defaults(func=cmd_train)
@@ -220,8 +230,16 @@ def cmd_run(args: argparse.Namespace) -> int:
     try:
         for i in tqdm(range(args.trials), desc=f"{args.sim}/{args.robot}/{args.terrain}/{args.policy}",
                       unit="trial", file=sys.stderr, disable=None):
-            trials.append(run_trial(sim, robot, terrain, policy, episode, seed=args.seed + i,
-                                    on_step=_llm_progress(policy, episode) if llm else None))
+            seed = args.seed + i
+            hooks = [_llm_progress(policy, episode)] if llm else []
+            recorder = _recorder(args, robot, terrain, sim, policy, seed)
+            if recorder is not None:
+                hooks.append(recorder.on_step)
+            trial = run_trial(sim, robot, terrain, policy, episode, seed=seed,
+                              on_step=(lambda loop: [hook(loop) for hook in hooks]) if hooks else None)
+            trials.append(trial)
+            if recorder is not None:
+                recorder.write(trial)
     except LLMError as err:  # keep what finished: report it, then the error
         error = err
     finally:
@@ -243,6 +261,36 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"bench: error: {error} ({len(trials)} finished trial(s) reported above)", file=sys.stderr)
         return 1
     return 0
+
+
+def _recorder(args: argparse.Namespace, robot, terrain, sim, policy, seed: int):
+    """The Recorder for this trial, or None when not recording."""
+    from pathlib import Path
+
+    from benchmark.recorder import Recorder
+
+    name = f"{args.sim}-{args.robot}-{args.terrain}-{args.policy}-seed{seed}"
+    if args.record_dir:
+        return Recorder(Path(args.record_dir) / f"{name}.rrd", robot, terrain, sim, policy, name)
+    if args.record:
+        path = Path(args.record)
+        if args.trials > 1:
+            path = path.with_name(f"{path.stem}-seed{seed}{path.suffix or '.rrd'}")
+        return Recorder(path, robot, terrain, sim, policy, name)
+    return None
+
+
+def cmd_view(args: argparse.Namespace) -> int:
+    import shutil
+    import subprocess
+    from pathlib import Path
+
+    if not Path(args.path).is_file():
+        raise CliError(f"recording '{args.path}' not found")
+    viewer = shutil.which("rerun")
+    if viewer is None:
+        raise CliError("the 'rerun' viewer is not on PATH; it comes with rerun-sdk (pip install -e .)")
+    return subprocess.call([viewer, args.path])
 
 
 def _llm_progress(policy, episode: EpisodeConfig):
@@ -300,7 +348,8 @@ def cmd_train(args: argparse.Namespace) -> int:
             raise CliError(f"--reward expects TERM=NUMBER, got '{item}'") from None
     rewards = reward_weights(overrides)
     out = Path(args.out or f"runs/train-{args.robot}")
-    path = train(args.robot, args.sim, args.steps, args.seed, out, args.eval_every, args.ship, rewards)
+    init = Path(args.init_from) if args.init_from else None
+    path = train(args.robot, args.sim, args.steps, args.seed, out, args.eval_every, args.ship, rewards, init)
     print(f"policy written to {path}; log in {out / 'train_log.csv'}")
     return 0
 

@@ -67,8 +67,23 @@ def reward_weights(overrides: dict[str, float] | None = None) -> RewardWeights:
     return replace(RewardWeights(), **(overrides or {}))
 
 
+def load_actor_into(model, actor: MlpActor) -> None:
+    """Warm start: copy a saved actor's weights into a fresh PPO policy (the critic starts anew)."""
+    import torch
+    import torch.nn as nn
+
+    linears = [m for m in model.policy.mlp_extractor.policy_net if isinstance(m, nn.Linear)]
+    linears.append(model.policy.action_net)
+    if [tuple(m.weight.shape) for m in linears] != [w.shape for w in actor.weights]:
+        raise ValueError("the saved actor's layer sizes differ from this training's network")
+    with torch.no_grad():
+        for layer, w, b in zip(linears, actor.weights, actor.biases):
+            layer.weight.copy_(torch.as_tensor(w))
+            layer.bias.copy_(torch.as_tensor(b))
+
+
 def train(robot: str, sim: str, steps: int, seed: int, out: Path, eval_every: int, ship: bool,
-          rewards: RewardWeights = RewardWeights()) -> Path:
+          rewards: RewardWeights = RewardWeights(), init_from: Path | None = None) -> Path:
     import torch
     import torch.nn as nn
     from stable_baselines3 import PPO
@@ -89,6 +104,8 @@ def train(robot: str, sim: str, steps: int, seed: int, out: Path, eval_every: in
     log_std = float(np.log(EXPLORATION_RAD / load_robot(robot).action_scale))
     model = PPO("MlpPolicy", vec, seed=seed, device="cpu", verbose=0, **PPO_SETTINGS,
                 policy_kwargs=dict(net_arch=NET, activation_fn=nn.ELU, log_std_init=log_std))
+    if init_from is not None:
+        load_actor_into(model, MlpActor.load(init_from))
     started = time.perf_counter()
     command = " ".join(["bench train", *sys.argv[2:]]) if sys.argv[1:2] == ["train"] else "bench train"
 
@@ -101,7 +118,9 @@ def train(robot: str, sim: str, steps: int, seed: int, out: Path, eval_every: in
                 "wall_s": round(time.perf_counter() - started, 1), "command": command,
                 "versions": {"python": platform.python_version(), "torch": torch.__version__,
                              "stable_baselines3": stable_baselines3.__version__, "gymnasium": gymnasium.__version__,
-                             "mujoco": mujoco.__version__}, "ppo": PPO_SETTINGS, "net": NET["pi"], "rewards": asdict(rewards)}
+                             "mujoco": mujoco.__version__}, "ppo": PPO_SETTINGS, "net": NET["pi"], "rewards": asdict(rewards),
+                "init_from": None if init_from is None else {"path": str(init_from),
+                                                             **MlpActor.load(init_from).meta}}
 
     log_path = out / "train_log.csv"
     fields = ["env_steps", "wall_s", "ep_reward_mean", "ep_len_mean", "eval_nwt", "eval_distance_m", "eval_vx",

@@ -136,10 +136,19 @@ def _run_cli(args: list[str]) -> tuple[int, str, str]:
 
 def test_llm_run_end_to_end_on_the_embedded_model(tmp_path, monkeypatch):
     monkeypatch.setenv("PROMPTWALK_CACHE", str(tmp_path))
+    record = tmp_path / "llm.rrd"
     code, out, err = _run_cli(["run", "--sim", "mujoco", "--robot", "a1", "--policy", "llm", "--duration", "2.5",
-                               "--llm-after", "2", "--trials", "1", "--threads", "1", "--json"])
+                               "--llm-after", "2", "--trials", "1", "--threads", "1", "--json", "--record", str(record)])
     assert code == 0, err
     trial = json.loads(out)["trials"][0]
+    # The recording holds the dialogue and, beside the LLM's actions, the seed policy's.
+    from test_recorder import _column, read_back
+
+    entities = read_back(record)
+    replies = [text for row in _column(entities["/llm/reply"], "TextLog:text") for text in row]
+    assert len(replies) == trial["queries"] and all(r.strip().startswith("[") for r in replies)
+    assert len(_column(entities["/joints/seed_policy_action"], "Scalars:scalars")) == trial["control_steps"]
+    assert len(_column(entities["/llm/prompt"], "TextLog:text")) == trial["queries"]
     # One query per control step of the LLM phase (2.0-2.5 s), fewer only if the robot fell.
     expected = 5 if trial["success"] else round((trial["fall_time"] - 2.0) / 0.1)
     assert trial["queries"] == expected >= 1 and trial["parse_failures"] == 0

@@ -131,13 +131,21 @@ class Recorder:
         return self.path
 
     def _blueprint(self, rrb):
+        """3D view following the base, beside joint, torque and base-velocity plots and the text logs."""
+        base = f"/world/robot/{self.robot.base_link}"
+        height = self.robot.init_height
+        eye = rrb.EyeControls3D(position=(-4 * height, -5 * height, 2.5 * height), look_target=(0.0, 0.0, height / 2),
+                                tracking_entity=base)
         text = [rrb.TextLogView(origin="/events", name="events")]
         if hasattr(self.policy, "queries"):
             text.append(rrb.TextLogView(origin="/llm", name="LLM dialogue"))
+        joints = ["/joints/position", "/joints/target"] + (["/joints/seed_policy_action", "/joints/action"]
+                                                            if hasattr(self.policy, "queries") else [])
         return rrb.Blueprint(rrb.Horizontal(
-            rrb.Spatial3DView(origin="/world", name="robot"),
-            rrb.Vertical(rrb.TimeSeriesView(origin="/joints", name="joints"),
-                         rrb.TimeSeriesView(origin="/base", name="base velocity"), *text),
+            rrb.Spatial3DView(origin="/world", name="robot", eye_controls=eye),
+            rrb.Vertical(rrb.TimeSeriesView(origin="/joints", contents=joints, name="joint position and target (rad)"),
+                         rrb.TimeSeriesView(origin="/joints/torque", name="joint torque (N m)"),
+                         rrb.TimeSeriesView(origin="/base/linear_velocity", name="base velocity (m/s)"), *text),
             column_shares=[3, 2]))
 
     def _log_static(self, rec, rr) -> None:

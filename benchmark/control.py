@@ -7,6 +7,8 @@ and in evaluation.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from benchmark.falls import fall_reason
@@ -16,12 +18,30 @@ from sims.base import RobotState, Simulator
 from sims.terrain import Terrain
 
 
-class ControlLoop:
-    """Holds the latest state, observation and action of one robot in one simulator."""
+HEADING_GAIN = 0.5  # yaw-rate command (rad/s) per radian of heading error, as in legged_gym
+MAX_YAW_RATE = 1.0  # rad/s
 
-    def __init__(self, sim: Simulator, robot: Robot, terrain: Terrain, command: np.ndarray | None = None) -> None:
+
+def yaw_of(quat_wxyz: np.ndarray) -> float:
+    w, x, y, z = quat_wxyz
+    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+
+
+class ControlLoop:
+    """Holds the latest state, observation and action of one robot in one simulator.
+
+    Heading hold: the observation's yaw-rate command steers the robot back to
+    `target_heading` (the observation carries no heading, so without it a policy's small
+    turning bias accumulates into metres of sideways drift). The LLM never sees commands.
+    """
+
+    def __init__(self, sim: Simulator, robot: Robot, terrain: Terrain, command: np.ndarray | None = None,
+                 heading_gain: float = HEADING_GAIN) -> None:
         self.sim, self.robot, self.terrain = sim, robot, terrain
-        self.command = robot.command if command is None else np.asarray(command, dtype=float)
+        self.base_command = robot.command if command is None else np.asarray(command, dtype=float)
+        self.command = self.base_command.copy()
+        self.heading_gain = heading_gain
+        self.target_heading = 0.0
         self.dt = sim.physics.control_dt
         self.steps = 0
         self.action = np.zeros(robot.num_joints)
@@ -34,12 +54,25 @@ class ControlLoop:
     def time(self) -> float:
         return self.steps * self.dt
 
-    def reset(self, seed: int) -> np.ndarray:
+    @property
+    def heading_error(self) -> float:
+        """Target heading minus current heading, wrapped to [-pi, pi)."""
+        error = self.target_heading - yaw_of(self.state.base_quat)
+        return (error + math.pi) % (2 * math.pi) - math.pi
+
+    def _update_command(self) -> None:
+        if self.heading_gain:
+            self.command = self.base_command.copy()
+            self.command[2] = float(np.clip(self.heading_gain * self.heading_error, -MAX_YAW_RATE, MAX_YAW_RATE))
+
+    def reset(self, seed: int, target_heading: float = 0.0) -> np.ndarray:
         self.steps = 0
+        self.target_heading = target_heading
         self.action = np.zeros(self.robot.num_joints)
         self.targets = self.robot.default_pose.copy()
         self.state = self.sim.reset(seed)
         self.fall = None
+        self._update_command()
         self.obs = rl_observation(self.state, self.robot, self.command, self.action)
         return self.obs
 
@@ -50,5 +83,6 @@ class ControlLoop:
         self.state = self.sim.step(self.targets)
         self.steps += 1
         self.fall = fall_reason(self.state, self.robot, self.terrain)
+        self._update_command()
         self.obs = rl_observation(self.state, self.robot, self.command, self.action)
         return self.obs

@@ -39,6 +39,8 @@ class Randomization:
     push_interval_s: float = 5.0
     push_velocity: float = 0.5  # m/s, max horizontal shove per axis
     obs_noise: float = 1.0  # factor on the per-quantity noise amplitudes below
+    heading: float = 0.5  # rad: target headings are drawn from [-heading, heading], so the policy
+    #                       learns to follow the yaw-rate command that holds a heading
 
 
 def observation_noise_amplitudes(scales) -> np.ndarray:
@@ -82,7 +84,8 @@ class LocomotionEnv(gym.Env):
             u = self.np_random.uniform
             self.sim.set_dynamics(Dynamics(friction=u(*r.friction), base_mass_scale=u(*r.base_mass_scale),
                                            motor_strength=u(*r.motor_strength)))
-        self.loop.reset(int(self.np_random.integers(2**31)))
+        target = self.np_random.uniform(-r.heading, r.heading) if r is not None else 0.0
+        self.loop.reset(int(self.np_random.integers(2**31)), target_heading=target)
         self._air.reset()
         return self._observe(), {}
 
@@ -93,7 +96,8 @@ class LocomotionEnv(gym.Env):
         if self._push_every and loop.steps % self._push_every == 0:
             self.sim.push_base(self.np_random.uniform(-1.0, 1.0, 2) * self.randomization.push_velocity)
         air = self._air.update(loop.state.foot_contact, loop.dt, self.rewards.air_time_target)
-        reward = walking_reward(loop.state, self.robot, loop.command, loop.action, last_action, air, self.rewards)
+        reward = walking_reward(loop.state, self.robot, loop.command, loop.action, last_action, air, self.rewards,
+                                loop.heading_error)
         terminated = loop.fall is not None
         truncated = loop.steps >= self.max_steps
         info = {"fall": loop.fall} if terminated else {}

@@ -23,7 +23,7 @@ class RewardWeights:
     tracking: float = 1.0  # x exp(-(vx - command_vx)^2 / 0.25)
     lateral: float = -1.0  # x vy^2
     yaw_rate: float = -0.5  # x (wz - command_wz)^2
-    heading: float = -1.0  # x |yaw|, the world heading error
+    heading: float = -1.0  # x |target heading - heading|
     vertical: float = -2.0  # x vz^2
     roll_pitch_rate: float = -0.05  # x (wx^2 + wy^2)
     orientation: float = -2.0  # x (gx^2 + gy^2)
@@ -31,11 +31,6 @@ class RewardWeights:
     action_rate: float = -0.02  # x mean((a - a_prev)^2)
     air_time: float = 1.0  # x sum over touchdowns of (air time - air_time_target)
     air_time_target: float = 0.2  # s: two control periods off the ground
-
-
-def yaw_of(quat_wxyz: np.ndarray) -> float:
-    w, x, y, z = quat_wxyz
-    return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
 
 
 class FeetAirTime:
@@ -59,7 +54,8 @@ class FeetAirTime:
 
 
 def walking_reward(state: RobotState, robot: Robot, command: np.ndarray, action: np.ndarray,
-                   last_action: np.ndarray, air_time_reward: float, w: RewardWeights) -> float:
+                   last_action: np.ndarray, air_time_reward: float, w: RewardWeights,
+                   heading_error: float = 0.0) -> float:
     vx, vy, vz = state.base_lin_vel
     wx, wy, wz = state.base_ang_vel
     gx, gy, _ = state.projected_gravity
@@ -69,7 +65,7 @@ def walking_reward(state: RobotState, robot: Robot, command: np.ndarray, action:
         + w.tracking * math.exp(-((vx - command[0]) ** 2) / 0.25)
         + w.lateral * vy**2
         + w.yaw_rate * (wz - command[2]) ** 2
-        + w.heading * abs(yaw_of(state.base_quat))
+        + w.heading * abs(heading_error)
         + w.vertical * vz**2
         + w.roll_pitch_rate * (wx**2 + wy**2)
         + w.orientation * (gx**2 + gy**2)

@@ -13,6 +13,7 @@ Examples:
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import sys
 import time
@@ -36,6 +37,11 @@ class CliError(Exception):
 class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> None:  # one line, not a usage dump
         raise CliError(f"{message} (see '{self.prog} --help')")
+
+
+def _doc(module: str) -> str:
+    """A command's long help: the docstring of the module that implements it."""
+    return importlib.import_module(module).__doc__ or ""
 
 
 def _positive(kind: type) -> callable:
@@ -133,7 +139,7 @@ def build_parser() -> argparse.ArgumentParser:
     view.set_defaults(func=cmd_view)
 
     train = sub.add_parser("train", help="train a seed policy with stable-baselines3 PPO (CPU, minutes)",
-                           description=__import__("benchmark.train", fromlist=["x"]).__doc__,
+                           description=_doc("benchmark.train"),
                            formatter_class=argparse.RawDescriptionHelpFormatter)
     train.add_argument("--robot", default="a1", help=f"robot: {', '.join(available_robots())} (default a1)")
     train.add_argument("--sim", default="mujoco", help="engine to train in (default mujoco)")
@@ -153,7 +159,7 @@ def build_parser() -> argparse.ArgumentParser:
     ship.set_defaults(func=cmd_ship)
 
     base = sub.add_parser("baselines", help="evaluate the shipped seed policies in every cell -> reports/",
-                          description=__import__("benchmark.baselines", fromlist=["x"]).__doc__,
+                          description=_doc("benchmark.baselines"),
                           formatter_class=argparse.RawDescriptionHelpFormatter)
     base.add_argument("--sims", nargs="+", default=available_sims(), help="engines (default: all)")
     base.add_argument("--robots", nargs="+", default=available_robots(), help="robots (default: all)")
@@ -175,7 +181,7 @@ def build_parser() -> argparse.ArgumentParser:
     prompt.set_defaults(func=cmd_prompt)
 
     lat = sub.add_parser("latency", help="LLM query latency by history length, sliding vs block-cut history",
-                         description=__import__("benchmark.llm.latency", fromlist=["x"]).__doc__,
+                         description=_doc("benchmark.llm.latency"),
                          formatter_class=argparse.RawDescriptionHelpFormatter)
     lat.add_argument("--llm", default="embedded", help="model spec, as for bench run (default embedded)")
     lat.add_argument("--llm-url", default=None, help="base URL for openai:MODEL")

@@ -20,6 +20,8 @@ from sims.terrain import Terrain
 
 HEADING_GAIN = 0.5  # yaw-rate command (rad/s) per radian of heading error, as in legged_gym
 MAX_YAW_RATE = 1.0  # rad/s
+LINE_GAIN = 0.5  # rad of heading toward the line per metre of sideways offset
+MAX_LINE_HEADING = 0.3  # rad
 
 
 def yaw_of(quat_wxyz: np.ndarray) -> float:
@@ -32,16 +34,20 @@ class ControlLoop:
 
     Heading hold: the observation's yaw-rate command steers the robot back to
     `target_heading` (the observation carries no heading, so without it a policy's small
-    turning bias accumulates into metres of sideways drift). The LLM never sees commands.
+    turning bias accumulates into metres of sideways drift). With `follow_line`, the target
+    heading points back to the straight line the robot started on (x axis through the start),
+    so a sideways bias is steered out too. Training uses random fixed headings instead. The
+    LLM never sees commands.
     """
 
     def __init__(self, sim: Simulator, robot: Robot, terrain: Terrain, command: np.ndarray | None = None,
-                 heading_gain: float = HEADING_GAIN) -> None:
+                 heading_gain: float = HEADING_GAIN, follow_line: bool = True) -> None:
         self.sim, self.robot, self.terrain = sim, robot, terrain
         self.base_command = robot.command if command is None else np.asarray(command, dtype=float)
         self.command = self.base_command.copy()
-        self.heading_gain = heading_gain
+        self.heading_gain, self.follow_line = heading_gain, follow_line
         self.target_heading = 0.0
+        self.line_y = 0.0
         self.dt = sim.physics.control_dt
         self.steps = 0
         self.action = np.zeros(robot.num_joints)
@@ -61,6 +67,9 @@ class ControlLoop:
         return (error + math.pi) % (2 * math.pi) - math.pi
 
     def _update_command(self) -> None:
+        if self.follow_line:
+            offset = float(self.state.base_pos[1]) - self.line_y
+            self.target_heading = float(np.clip(-LINE_GAIN * offset, -MAX_LINE_HEADING, MAX_LINE_HEADING))
         if self.heading_gain:
             self.command = self.base_command.copy()
             self.command[2] = float(np.clip(self.heading_gain * self.heading_error, -MAX_YAW_RATE, MAX_YAW_RATE))
@@ -71,6 +80,7 @@ class ControlLoop:
         self.action = np.zeros(self.robot.num_joints)
         self.targets = self.robot.default_pose.copy()
         self.state = self.sim.reset(seed)
+        self.line_y = float(self.state.base_pos[1])
         self.fall = None
         self._update_command()
         self.obs = rl_observation(self.state, self.robot, self.command, self.action)

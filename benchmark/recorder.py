@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
+from functools import cache
 from pathlib import Path
 
 import numpy as np
@@ -50,8 +51,9 @@ def _quat_xyzw(m: np.ndarray) -> np.ndarray:
     return q
 
 
+@cache
 def urdf_shapes(urdf: Path) -> list[Shape]:
-    """The collision primitives of every link, in link coordinates."""
+    """The collision primitives of every link, in link coordinates (parsed once per file)."""
     shapes = []
     for link in ET.parse(urdf).getroot().findall("link"):
         for collision in link.findall("collision"):
@@ -71,6 +73,21 @@ def urdf_shapes(urdf: Path) -> list[Shape]:
     return shapes
 
 
+def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product of x, y, z, w quaternions, broadcast over leading axes."""
+    ax, ay, az, aw = np.moveaxis(a, -1, 0)
+    bx, by, bz, bw = np.moveaxis(np.broadcast_to(b, a.shape), -1, 0)
+    return np.stack([aw * bx + ax * bw + ay * bz - az * by, aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw, aw * bw - ax * bx - ay * by - az * bz], axis=-1)
+
+
+def _rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Rotate vectors v by x, y, z, w quaternions q, broadcast over leading axes."""
+    u, w = q[..., :3], q[..., 3:]
+    t = 2.0 * np.cross(u, np.broadcast_to(v, u.shape))
+    return v + w * t + np.cross(u, t)
+
+
 class Recorder:
     """Collects one trial through the runner's `on_step` hook and writes it to an .rrd file."""
 
@@ -80,7 +97,7 @@ class Recorder:
         self.times: list[float] = []
         self.body_pos: list[np.ndarray] = []
         self.body_quat: list[np.ndarray] = []
-        self.rows: dict[str, list] = {k: [] for k in ("base_pos", "lin_vel", "ang_vel", "joint_pos", "targets",
+        self.rows: dict[str, list] = {k: [] for k in ("lin_vel", "ang_vel", "joint_pos", "targets",
                                                       "torques", "contacts", "actions", "seed_actions")}
         self.body_names: tuple[str, ...] = ()
         self.events: list[tuple[float, str]] = []
@@ -93,7 +110,7 @@ class Recorder:
         self.body_pos.append(poses.positions)
         self.body_quat.append(poses.quats[:, [1, 2, 3, 0]])  # w,x,y,z -> Rerun's x,y,z,w
         # State arrays are fresh each step; the action may be a policy's reused buffer: copy it.
-        for key, value in (("base_pos", s.base_pos), ("lin_vel", s.base_lin_vel), ("ang_vel", s.base_ang_vel),
+        for key, value in (("lin_vel", s.base_lin_vel), ("ang_vel", s.base_ang_vel),
                            ("joint_pos", s.joint_pos), ("targets", loop.targets), ("torques", s.joint_torque),
                            ("contacts", s.foot_contact), ("actions", np.array(loop.action, dtype=float))):
             self.rows[key].append(value)
@@ -126,8 +143,7 @@ class Recorder:
             rec.set_time(TIMELINE, duration=self.times[-1] if self.times else 0.0)
             rec.log("events", rr.TextLog(f"trial done: NWT {result.nwt:.3f}, success {result.success}, "
                                          f"distance {result.distance_m:.2f} m"))
-        rec.flush()
-        rec.disconnect()
+        rec.disconnect()  # flushes the file
         return self.path
 
     def _blueprint(self, rrb):
@@ -164,34 +180,47 @@ class Recorder:
             triangles = np.concatenate([np.stack([a, b, d], 1), np.stack([a, d, c], 1)])
             rec.log("world/terrain", rr.Mesh3D(vertex_positions=vertices, triangle_indices=triangles,
                                                albedo_factor=TERRAIN_COLOR), static=True)
-        by_link: dict[tuple[str, str], list[Shape]] = {}
-        for shape in urdf_shapes(self.robot.urdf):
-            by_link.setdefault((shape.link, shape.kind), []).append(shape)
-        for (link, kind), shapes in by_link.items():
-            centers = [sh.position for sh in shapes]
-            quats = [sh.quat_xyzw for sh in shapes]
+        for kind, shapes in self._shapes_by_kind().items():  # sizes are static; poses come per step
             colors = [ROBOT_COLOR] * len(shapes)
             if kind == "box":
-                archetype = rr.Boxes3D(half_sizes=[np.array(sh.size) / 2 for sh in shapes], centers=centers,
-                                       quaternions=quats, colors=colors, fill_mode="solid")
+                archetype = rr.Boxes3D(half_sizes=[np.array(sh.size) / 2 for sh in shapes], colors=colors,
+                                       fill_mode="solid")
             elif kind == "cylinder":
                 archetype = rr.Cylinders3D(radii=[sh.size[0] for sh in shapes], lengths=[sh.size[1] for sh in shapes],
-                                           centers=centers, quaternions=quats, colors=colors, fill_mode="solid")
+                                           colors=colors, fill_mode="solid")
             else:
-                archetype = rr.Ellipsoids3D(half_sizes=[[sh.size[0]] * 3 for sh in shapes], centers=centers,
-                                            colors=colors, fill_mode="solid")
-            rec.log(f"world/robot/{link}/{kind}", archetype, static=True)
+                archetype = rr.Ellipsoids3D(half_sizes=[[sh.size[0]] * 3 for sh in shapes], colors=colors,
+                                            fill_mode="solid")
+            rec.log(f"world/robot/{kind}", archetype, static=True)
+
+    def _shapes_by_kind(self) -> dict[str, list[Shape]]:
+        by_kind: dict[str, list[Shape]] = {}
+        for shape in urdf_shapes(self.robot.urdf):
+            by_kind.setdefault(shape.kind, []).append(shape)
+        return by_kind
 
     def _log_series(self, rec, rr) -> None:
         """One entity per quantity, one instance per joint/axis: a few dozen send_columns in all."""
         times = rr.TimeColumn(TIMELINE, duration=np.array(self.times))
         n = len(self.times)
         positions, quats = np.stack(self.body_pos), np.stack(self.body_quat)
-        for b, body in enumerate(self.body_names):
-            rec.send_columns(f"world/robot/{body}", indexes=[times],
-                             columns=rr.Transform3D.columns(translation=positions[:, b], quaternion=quats[:, b]))
+        base = self.body_names.index(self.robot.base_link)
+        rec.send_columns(f"world/robot/{self.robot.base_link}", indexes=[times],
+                         columns=rr.Transform3D.columns(translation=positions[:, base], quaternion=quats[:, base]))
+        # Every shape in world coordinates, one entity per shape kind: three calls, not one per link.
+        columns = {"box": rr.Boxes3D.columns, "cylinder": rr.Cylinders3D.columns, "sphere": rr.Ellipsoids3D.columns}
+        for kind, shapes in self._shapes_by_kind().items():
+            links = [self.body_names.index(sh.link) for sh in shapes]
+            link_q = quats[:, links]  # (steps, shapes, 4) x, y, z, w
+            centers = positions[:, links] + _rotate(link_q, np.array([sh.position for sh in shapes]))
+            world_q = _quat_mul(link_q, np.array([sh.quat_xyzw for sh in shapes]))
+            fields = dict(centers=centers.reshape(-1, 3))
+            if kind != "sphere":
+                fields["quaternions"] = world_q.reshape(-1, 4)
+            rec.send_columns(f"world/robot/{kind}", indexes=[times],
+                             columns=columns[kind](**fields).partition([len(shapes)] * n))
         series = [("base/linear_velocity", "lin_vel", AXES), ("base/angular_velocity", "ang_vel", AXES),
-                  ("base/position", "base_pos", AXES), ("joints/position", "joint_pos", CANONICAL_JOINTS),
+                  ("joints/position", "joint_pos", CANONICAL_JOINTS),
                   ("joints/target", "targets", CANONICAL_JOINTS), ("joints/torque", "torques", CANONICAL_JOINTS),
                   ("joints/action", "actions", CANONICAL_JOINTS),
                   ("joints/seed_policy_action", "seed_actions", CANONICAL_JOINTS), ("feet/contact", "contacts", LEGS)]

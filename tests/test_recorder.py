@@ -51,7 +51,7 @@ def test_recording_holds_what_the_runner_saw(make, sim_name, tmp_path):
     entities = read_back(path)
     steps = result.control_steps
     assert steps == len(seen) >= 5  # 20 unless the robot fell: a fall ends the trial early
-    for static in ("/world/terrain", f"/world/robot/{robot.base_link}/box", "/world/robot/FR_toe/sphere"):
+    for static in ("/world/terrain", "/world/robot/box", "/world/robot/sphere"):
         assert static in entities, sorted(entities)
     positions = _column(entities["/joints/position"], "Scalars:scalars")
     assert len(positions) == steps
@@ -63,6 +63,11 @@ def test_recording_holds_what_the_runner_saw(make, sim_name, tmp_path):
     np.testing.assert_allclose(np.array(base).reshape(steps, 3), np.array([s[2] for s in seen]), atol=1e-5)
     for entity in ("/joints/torque", "/base/linear_velocity", "/feet/contact"):
         assert len(_column(entities[entity], "Scalars:scalars")) == steps, entity
+    # Shapes move with their links: each foot sphere's centre is that foot link's position.
+    spheres = np.array(_column(entities["/world/robot/sphere"], "Ellipsoids3D:centers"))
+    poses = sim.body_poses()
+    feet = np.array([poses.positions[poses.names.index(f)] for f in robot.foot_links])
+    np.testing.assert_allclose(spheres[-1], feet, atol=1e-6)
     assert "/joints/seed_policy_action" not in entities  # only LLM runs have a seed policy beside them
     texts = [text for row in _column(entities["/events"], "TextLog:text") for text in row]
     assert any("trial done" in t for t in texts)

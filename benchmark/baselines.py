@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from benchmark.policies import make_policy
+from benchmark.policies import Policy, make_policy
 from benchmark.runner import EpisodeConfig, TrialResult, run_trial
 from robots import load_robot
 from sims import make_sim
@@ -31,11 +31,12 @@ class Cell:
     terrain: str
 
 
-def evaluate_cell(cell: Cell, trials: int, duration: float, policy: str = "rl") -> list[TrialResult]:
+def evaluate_cell(cell: Cell, trials: int, duration: float, policy: Policy | None = None) -> list[TrialResult]:
+    """`trials` trials (seeds 0..trials-1) of `policy` (default: the shipped seed policy) in one cell."""
     robot = load_robot(cell.robot)
     sim = make_sim(cell.sim, robot, Terrain(cell.terrain))
     try:
-        agent = make_policy(policy, robot)
+        agent = policy or make_policy("rl", robot)
         return [run_trial(sim, robot, sim.terrain, agent, EpisodeConfig(duration), seed) for seed in range(trials)]
     finally:
         sim.close()

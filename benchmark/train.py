@@ -13,20 +13,19 @@ from __future__ import annotations
 
 import csv
 import json
-from dataclasses import asdict, fields, replace
 import platform
 import sys
 import time
+from dataclasses import asdict, fields, replace
 from pathlib import Path
 
 import numpy as np
 
+from benchmark.baselines import Cell, evaluate_cell
 from benchmark.mlp import MlpActor
+from benchmark.policies import RLPolicy
 from benchmark.rewards import RewardWeights
-from benchmark.runner import EpisodeConfig, run_trial
 from robots import ROBOTS_DIR, load_robot
-from sims import make_sim
-from sims.terrain import Terrain
 
 NUM_ENVS = 8
 PPO_SETTINGS = dict(n_steps=256, batch_size=512, n_epochs=5, gamma=0.97, gae_lambda=0.95, learning_rate=3e-4,
@@ -35,27 +34,20 @@ NET = dict(pi=[256, 128], vf=[256, 128])
 EXPLORATION_RAD = 0.25  # initial action noise in joint radians, the same for every robot
 
 
-def export_actor(model, meta: dict) -> MlpActor:
-    """The deterministic actor of an SB3 ActorCriticPolicy as numpy arrays."""
+def _actor_layers(model) -> list:
+    """The linear layers of an SB3 ActorCriticPolicy's actor, input to output."""
     import torch.nn as nn
 
+    return [m for m in model.policy.mlp_extractor.policy_net if isinstance(m, nn.Linear)] + [model.policy.action_net]
+
+
+def export_actor(model, meta: dict) -> MlpActor:
+    """The deterministic actor of an SB3 ActorCriticPolicy as numpy arrays."""
     from benchmark.envs import ACTION_LIMIT
 
-    linears = [m for m in model.policy.mlp_extractor.policy_net if isinstance(m, nn.Linear)]
-    linears.append(model.policy.action_net)
+    linears = _actor_layers(model)
     return MlpActor(tuple(m.weight.detach().numpy().copy() for m in linears),
                     tuple(m.bias.detach().numpy().copy() for m in linears), "elu", ACTION_LIMIT, meta)
-
-
-def evaluate(actor: MlpActor, robot_name: str, sim_name: str, terrain: str, seed: int, duration: float = 10.0):
-    from benchmark.policies import RLPolicy
-
-    robot = load_robot(robot_name)
-    sim = make_sim(sim_name, robot, Terrain(terrain))
-    try:
-        return run_trial(sim, robot, sim.terrain, RLPolicy(robot, actor=actor), EpisodeConfig(duration), seed)
-    finally:
-        sim.close()
 
 
 def reward_weights(overrides: dict[str, float] | None = None) -> RewardWeights:
@@ -70,10 +62,8 @@ def reward_weights(overrides: dict[str, float] | None = None) -> RewardWeights:
 def load_actor_into(model, actor: MlpActor) -> None:
     """Warm start: copy a saved actor's weights into a fresh PPO policy (the critic starts anew)."""
     import torch
-    import torch.nn as nn
 
-    linears = [m for m in model.policy.mlp_extractor.policy_net if isinstance(m, nn.Linear)]
-    linears.append(model.policy.action_net)
+    linears = _actor_layers(model)
     if [tuple(m.weight.shape) for m in linears] != [w.shape for w in actor.weights]:
         raise ValueError("the saved actor's layer sizes differ from this training's network")
     with torch.no_grad():
@@ -143,7 +133,8 @@ def train(robot: str, sim: str, steps: int, seed: int, out: Path, eval_every: in
         def _evaluate(self) -> None:
             actor = export_actor(self.model, meta(self.num_timesteps))
             actor.save(out / "policy.npz")
-            trial = evaluate(actor, robot, sim, "flat", seed=0)
+            trial = evaluate_cell(Cell(sim, robot, "flat"), trials=1, duration=10.0,
+                                  policy=RLPolicy(load_robot(robot), actor=actor))[0]
             episodes = list(self.model.ep_info_buffer)
             row = [self.num_timesteps, round(time.perf_counter() - started, 1),
                    round(float(np.mean([e["r"] for e in episodes])), 2) if episodes else "",

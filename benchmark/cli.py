@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import importlib.util
 import json
 import sys
 import time
@@ -151,7 +152,42 @@ def build_parser() -> argparse.ArgumentParser:
     train.add_argument("--init-from", default=None, help="warm start the actor from a policy.npz (fine-tuning)")
     train.add_argument("--reward", nargs="*", default=[], metavar="TERM=WEIGHT",
                        help="override reward weights, e.g. yaw_rate=-2 heading=-2 (see benchmark/rewards.py)")
+    train.add_argument("--rough-share", type=float, default=0.5,
+                       help="fraction of the 8 environments on rough terrain (default 0.5)")
+    train.add_argument("--eval-terrain", choices=["flat", "rough"], default="flat",
+                       help="terrain of the periodic evaluation trial (default flat)")
     train.set_defaults(func=cmd_train)
+
+    sweep = sub.add_parser("sweep", help="run an experiment grid in parallel into a resumable results store",
+                           description=_doc("benchmark.sweep"), formatter_class=argparse.RawDescriptionHelpFormatter)
+    sweep.add_argument("experiment", nargs="?", default=None,
+                       help="a shipped experiment (see --list) or the path of an experiment .toml")
+    sweep.add_argument("--list", action="store_true", help="list the shipped experiments and exit")
+    sweep.add_argument("--workers", type=_positive(int), default=1,
+                       help="parallel trials (processes, or Ray tasks in flight; default 1)")
+    sweep.add_argument("--results", default=None, metavar="DIR",
+                       help="results store (default results/EXPERIMENT); trials already there are skipped")
+    sweep.add_argument("--dry-run", action="store_true", help="list the cells and how many trials are missing")
+    sweep.add_argument("--executor", default="local", choices=("local", "ray"),
+                       help="local processes, or Ray tasks (pip install -e '.[ray]')")
+    sweep.add_argument("--ray-address", default=None,
+                       help="Ray cluster address (default: start a local Ray instance)")
+    sweep.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE", dest="overrides",
+                       help="override a setting in every cell, e.g. history_mode=block model=openai:gpt-4o")
+    sweep.add_argument("--only", nargs="*", default=[], metavar="KEY=VALUE",
+                       help="run only the cells whose setting matches, e.g. policy=rl sim=mujoco")
+    sweep.add_argument("--rate-limit", type=_positive(float), default=None, metavar="RPM",
+                       help="remote LLM servers: at most RPM queries a minute over all workers")
+    sweep.add_argument("--threads", type=_positive(int), default=None,
+                       help="llama.cpp threads per worker (default: cores / workers)")
+    sweep.set_defaults(func=cmd_sweep)
+
+    report = sub.add_parser("report", help="tables and figures from a results store -> reports/",
+                            description=_doc("benchmark.report"), formatter_class=argparse.RawDescriptionHelpFormatter)
+    report.add_argument("results", help="a results directory written by bench sweep, or a results.parquet")
+    report.add_argument("--format", default="md", choices=("md", "html", "csv"), help="table format (default md)")
+    report.add_argument("--out", default="reports", help="folder for tables; figures go to OUT/figures")
+    report.set_defaults(func=cmd_report)
 
     ship = sub.add_parser("ship", help="install a trained policy.npz as robots/ROBOT/policy.npz (+ policy.json)")
     ship.add_argument("path", help="a policy.npz written by bench train")
@@ -286,6 +322,83 @@ def _recorder(args: argparse.Namespace, robot, terrain, sim, policy, seed: int):
     return None
 
 
+def cmd_sweep(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from benchmark.experiment import available_experiments, load_experiment, parse_overrides
+    from benchmark.store import ResultStore
+    from benchmark.sweep import TrialError, run_sweep
+
+    if args.list or args.experiment is None:
+        if args.experiment is None and not args.list:
+            raise CliError(f"name an experiment: {', '.join(available_experiments())} (or a path to a .toml)")
+        for name in available_experiments():
+            exp = load_experiment(name)
+            print(f"{name:<14} {len(exp.trials()):>4} trials  {exp.title}")
+        return 0
+    experiment = load_experiment(args.experiment)
+    only = {}
+    for item in args.only:
+        key, sep, value = item.partition("=")
+        if not sep:
+            raise CliError(f"--only expects KEY=VALUE, got '{item}'")
+        only[key] = value
+    overrides = parse_overrides(args.overrides)
+    trials = experiment.trials(overrides, only)
+    if args.executor == "ray" and importlib.util.find_spec("ray") is None:
+        raise CliError("--executor ray needs Ray: pip install -e '.[ray]'")
+    if not trials:
+        raise CliError(f"no cell of '{experiment.name}' matches --only {' '.join(args.only)}")
+    store = ResultStore(Path(args.results or f"results/{experiment.name}"))
+    done = store.done_ids()
+    if args.dry_run:
+        cells: dict[str, list] = {}
+        for t in trials:
+            cells.setdefault(t.cell_id, []).append(t)
+        print(f"{experiment.name}: {len(cells)} cells, {len(trials)} trials, "
+              f"{sum(t.id not in done for t in trials)} missing in {store.root}")
+        for group in cells.values():
+            t = group[0]
+            missing = sum(x.id not in done for x in group)
+            params = {**t.cell.params(), **t.labels}
+            shown = {k: params[k] for k in [*experiment.axes, *overrides] if k in params}
+            print(f"  {t.cell_id}  {t.cell.label():<32} {json.dumps(shown)}  seeds {[x.seed for x in group]}"
+                  f"  missing {missing}")
+        return 0
+    try:
+        outcome = run_sweep(trials, store, workers=args.workers, executor=args.executor, address=args.ray_address,
+                            requests_per_minute=args.rate_limit, threads=args.threads)
+    except (TrialError, LLMError) as err:
+        print(f"bench: error: {err} ({len(store.done_ids())} trial(s) stored in {store.root}; "
+              "run the same command again to resume)", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"bench: interrupted ({len(store.done_ids())} trial(s) stored in {store.root}; "
+              "run the same command again to resume)", file=sys.stderr)
+        return 130
+    print(f"{experiment.name}: {outcome.ran} trial(s) run, {outcome.skipped} already stored, "
+          f"{outcome.total} in the grid; {outcome.wall_s:.1f} s with {args.workers} {args.executor} worker(s); "
+          f"results in {store.root}")
+    return 0
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from benchmark.report import write_reports
+    from benchmark.store import load_results
+
+    try:
+        frame = load_results(args.results)
+    except FileNotFoundError as err:
+        raise CliError(str(err)) from None
+    if frame.empty:
+        raise CliError(f"'{args.results}' holds no trials yet; run 'bench sweep' into it first")
+    for path in write_reports(frame, Path(args.out), args.format):
+        print(path)
+    return 0
+
+
 def cmd_view(args: argparse.Namespace) -> int:
     import shutil
     import subprocess
@@ -353,9 +466,12 @@ def cmd_train(args: argparse.Namespace) -> int:
         except ValueError:
             raise CliError(f"--reward expects TERM=NUMBER, got '{item}'") from None
     rewards = reward_weights(overrides)
+    if not 0.0 <= args.rough_share <= 1.0:
+        raise CliError(f"--rough-share must be between 0 and 1, got {args.rough_share}")
     out = Path(args.out or f"runs/train-{args.robot}")
     init = Path(args.init_from) if args.init_from else None
-    path = train(args.robot, args.sim, args.steps, args.seed, out, args.eval_every, args.ship, rewards, init)
+    path = train(args.robot, args.sim, args.steps, args.seed, out, args.eval_every, args.ship, rewards, init,
+                 rough_share=args.rough_share, eval_terrain=args.eval_terrain)
     print(f"policy written to {path}; log in {out / 'train_log.csv'}")
     return 0
 

@@ -2,8 +2,8 @@
 
     bench train --robot a1 --steps 1000000 --seed 0
 
-Eight environments in one process (DummyVecEnv: on 2 cores it beats subprocesses), half on
-flat ground and half on rough terrain of different seeds, all domain-randomized. Every
+Eight environments in one process (DummyVecEnv: on 2 cores it beats subprocesses), by default half on
+flat ground and half on rough terrain of different seeds (`--rough-share`), all domain-randomized. Every
 `--eval-every` steps the deterministic actor walks one 10 s trial through the benchmark's
 own runner; the row goes to `train_log.csv` and the actor to `policy.npz` in `--out`.
 With `--ship`, the final actor is also written to `robots/<robot>/policy.npz`.
@@ -73,7 +73,8 @@ def load_actor_into(model, actor: MlpActor) -> None:
 
 
 def train(robot: str, sim: str, steps: int, seed: int, out: Path, eval_every: int, ship: bool,
-          rewards: RewardWeights = RewardWeights(), init_from: Path | None = None) -> Path:
+          rewards: RewardWeights = RewardWeights(), init_from: Path | None = None,
+          rough_share: float = 0.5, eval_terrain: str = "flat") -> Path:
     import torch
     import torch.nn as nn
     from stable_baselines3 import PPO
@@ -87,7 +88,9 @@ def train(robot: str, sim: str, steps: int, seed: int, out: Path, eval_every: in
     out.mkdir(parents=True, exist_ok=True)
 
     def make(i: int):
-        return lambda: LocomotionEnv(robot, sim, "flat" if i % 2 == 0 else "rough", terrain_seed=i, rewards=rewards)
+        # spread the rough environments evenly; at 0.5 they alternate flat, rough, flat, ...
+        terrain = "rough" if int((i + 1) * rough_share) > int(i * rough_share) else "flat"
+        return lambda: LocomotionEnv(robot, sim, terrain, terrain_seed=i, rewards=rewards)
 
     vec = VecMonitor(DummyVecEnv([make(i) for i in range(NUM_ENVS)]))
     vec.seed(seed)
@@ -133,7 +136,7 @@ def train(robot: str, sim: str, steps: int, seed: int, out: Path, eval_every: in
         def _evaluate(self) -> None:
             actor = export_actor(self.model, meta(self.num_timesteps))
             actor.save(out / "policy.npz")
-            trial = evaluate_cell(Cell(sim, robot, "flat"), trials=1, duration=10.0,
+            trial = evaluate_cell(Cell(sim, robot, eval_terrain), trials=1, duration=10.0,
                                   policy=RLPolicy(load_robot(robot), actor=actor))[0]
             episodes = list(self.model.ep_info_buffer)
             row = [self.num_timesteps, round(time.perf_counter() - started, 1),

@@ -121,10 +121,15 @@ class OpenAIModel:
     """Any OpenAI-compatible HTTP server. The API key is sent, never printed, logged or cached."""
 
     def __init__(self, model: str, url: str | None = None, api_key: str | None = None, api: str = "completions",
-                 timeout_s: float = 120.0, retries: int = 4, backoff_s: float = 1.0) -> None:
+                 timeout_s: float = 120.0, retries: int = 4, backoff_s: float = 1.0,
+                 requests_per_minute: float | None = None) -> None:
         if api not in ("completions", "chat"):
             raise ValueError(f"unknown api '{api}'; valid: chat, completions")
+        if requests_per_minute is not None and not requests_per_minute > 0:
+            raise ValueError(f"requests per minute must be > 0, got {requests_per_minute}")
         self.model, self.api, self.timeout_s, self.retries, self.backoff_s = model, api, timeout_s, retries, backoff_s
+        self.min_interval_s = 60.0 / requests_per_minute if requests_per_minute else 0.0
+        self._next_request_at = 0.0
         self.url = (url or os.environ.get(URL_ENV) or "https://api.openai.com/v1").rstrip("/")
         self._key = api_key or next((os.environ[k] for k in API_KEY_ENV if os.environ.get(k)), None)
         self.id = f"openai:{self.url}:{model}:{api}"
@@ -151,6 +156,7 @@ class OpenAIModel:
         headers = {"Content-Type": "application/json"}
         if self._key:
             headers["Authorization"] = f"Bearer {self._key}"
+        self._respect_rate_limit()
         start = time.perf_counter()
         for attempt in range(self.retries + 1):
             request = urllib.request.Request(self.url + path, data=data, headers=headers, method="POST")
@@ -175,6 +181,13 @@ class OpenAIModel:
         usage = result.get("usage") or {}
         return Reply(text or "", usage.get("prompt_tokens", 0), usage.get("completion_tokens", 0),
                      time.perf_counter() - start)
+
+    def _respect_rate_limit(self) -> None:
+        """Space requests at least `min_interval_s` apart (a sweep splits its limit over its workers)."""
+        now = time.monotonic()
+        if now < self._next_request_at:
+            time.sleep(self._next_request_at - now)
+        self._next_request_at = max(now, self._next_request_at) + self.min_interval_s
 
     def close(self) -> None:
         pass
@@ -212,13 +225,14 @@ class CachedModel:
 
 
 def make_model(spec: str, url: str | None = None, api_key: str | None = None, api: str = "completions",
-               cache: bool = True, threads: int | None = None) -> LanguageModel:
+               cache: bool = True, threads: int | None = None,
+               requests_per_minute: float | None = None) -> LanguageModel:
     """`embedded`, `embedded:PATH.gguf` or `openai:MODEL`."""
     kind, _, name = spec.partition(":")
     if kind == "embedded":
         model: LanguageModel = EmbeddedModel(name or None, threads=threads)
     elif kind == "openai" and name:
-        model = OpenAIModel(name, url=url, api_key=api_key, api=api)
+        model = OpenAIModel(name, url=url, api_key=api_key, api=api, requests_per_minute=requests_per_minute)
     else:
         raise ValueError(f"unknown model '{spec}'; valid: embedded, embedded:PATH.gguf, openai:MODEL")
     return CachedModel(model) if cache else model

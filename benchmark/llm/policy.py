@@ -41,6 +41,7 @@ class LLMConfig:
     price_out: float | None = None
     cache: bool = True
     threads: int | None = None
+    requests_per_minute: float | None = None  # remote servers only: at most this many queries a minute
 
     def __post_init__(self) -> None:
         if self.history_mode not in HISTORY_MODES:
@@ -81,7 +82,8 @@ class LLMPolicy:
         self.robot, self.config = robot, config
         self.seed_policy = seed_policy or RLPolicy(robot)
         self.model = model or make_model(config.model, url=config.url, api=config.api, cache=config.cache,
-                                         threads=config.threads)
+                                         threads=config.threads,
+                                         requests_per_minute=config.requests_per_minute)
         self.encoding = get_encoding(config.prompt.encoding)
         self.description = describe_robot(robot, config.prompt)
         self.constraint = Constraint()

@@ -1,0 +1,230 @@
+"""Experiment files: a TOML grid over cells, expanded into trials.
+
+    name = "normalization"
+    title = "Normalization methods: 20 s walks, velocities only"
+    seeds = [0, 1, 2, 3, 4]
+
+    [fixed]                      # every cell
+    policy = "llm"
+    observation = "O2"
+
+    [grid]                       # every combination of these
+    encoding = ["E1", "E2", "E3", "E4", "E5"]
+
+    [variants.description]       # optional: named bundles of settings, one axis of the grid
+    D1 = { prompt_parts = ["task"] }
+
+A cell is one `CellSpec` (engine, robot, terrain, policy and the LLM settings); a trial is a
+cell and a seed. Settings that only the LLM policy reads are blanked for the other policies,
+so a grid over encodings does not run the seed policy five times.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import json
+import tomllib
+from dataclasses import asdict, dataclass, field, fields, replace
+from pathlib import Path
+
+from benchmark.llm.encodings import DEFAULT_ENCODING
+from benchmark.llm.observations import DEFAULT_OBSERVATION
+from benchmark.llm.prompt import PARTS
+
+EXPERIMENTS_DIR = Path(__file__).parent / "experiments"
+LLM_ONLY = ("model", "url", "api", "history", "history_mode", "prompt_parts", "encoding", "observation",
+            "constrained", "temperature", "llm_after", "seed_start")
+
+
+class ExperimentError(ValueError):
+    """A malformed experiment file or override: one line for the user."""
+
+
+@dataclass(frozen=True)
+class CellSpec:
+    """Everything one trial depends on except its seed."""
+
+    sim: str = "mujoco"
+    robot: str = "a1"
+    terrain: str = "flat"
+    terrain_seed: int = 0
+    policy: str = "rl"
+    duration: float = 10.0  # s; an LLM cell's metrics cover [llm_after, duration]
+    device: str | None = None  # newton only
+    solver: str | None = None  # newton only
+    model: str | None = "embedded"
+    url: str | None = None
+    api: str | None = "completions"
+    history: int | None = 50
+    history_mode: str | None = "sliding"
+    prompt_parts: tuple[str, ...] | None = PARTS
+    encoding: str | None = DEFAULT_ENCODING
+    observation: str | None = DEFAULT_OBSERVATION
+    constrained: bool | None = True
+    temperature: float | None = 0.0
+    llm_after: float | None = 10.0
+    seed_start: float | None = 1.0
+
+    @property
+    def uses_llm(self) -> bool:
+        return self.policy == "llm"
+
+    def canonical(self) -> CellSpec:
+        """The same cell with the settings its policy ignores blanked (None)."""
+        if self.uses_llm:
+            return self
+        return replace(self, **{name: None for name in LLM_ONLY})
+
+    def params(self) -> dict:
+        """Flat, parquet-friendly parameters (prompt parts joined with '+')."""
+        out = asdict(self)
+        if out["prompt_parts"] is not None:
+            out["prompt_parts"] = "+".join(out["prompt_parts"])
+        return out
+
+    @property
+    def eval_start(self) -> float:
+        return float(self.llm_after) if self.uses_llm else 0.0
+
+    def label(self) -> str:
+        return f"{self.sim}/{self.robot}/{self.terrain}/{self.policy}"
+
+
+@dataclass(frozen=True)
+class Trial:
+    experiment: str
+    cell: CellSpec
+    seed: int
+    labels: dict = field(default_factory=dict, compare=False)  # the cell's value on each grid axis
+    cell_index: int = field(default=0, compare=False)  # position of the cell in the grid, for tables
+
+    @property
+    def id(self) -> str:
+        """Stable across runs and machines: the results store's key."""
+        key = json.dumps([self.experiment, self.cell.params(), self.seed], sort_keys=True)
+        return hashlib.sha256(key.encode()).hexdigest()[:16]
+
+    @property
+    def cell_id(self) -> str:
+        key = json.dumps([self.experiment, self.cell.params()], sort_keys=True)
+        return hashlib.sha256(key.encode()).hexdigest()[:12]
+
+
+@dataclass(frozen=True)
+class Experiment:
+    name: str
+    title: str
+    command: str  # how the committed reference results were made, when there are any
+    fixed: dict
+    grid: dict  # axis -> list of values; an axis named after a variants table picks from it
+    variants: dict  # axis -> {variant name -> settings}
+    seeds: tuple[int, ...]
+    source: Path | None = None
+
+    @property
+    def axes(self) -> list[str]:
+        return list(self.grid)
+
+    def trials(self, overrides: dict | None = None, only: dict | None = None) -> list[Trial]:
+        """Every (cell, seed), deduplicated, in grid order; `overrides` win over the file's settings,
+        `only` keeps the cells whose parameters match (values compared as text)."""
+        out, seen, cells = [], set(), {}
+        for combo in itertools.product(*self.grid.values()):
+            settings, variants = dict(self.fixed), {}
+            for axis, value in zip(self.grid, combo):
+                if axis in self.variants:
+                    variants[axis] = value
+                    settings.update(self.variants[axis][value])
+                else:
+                    settings[axis] = value
+            settings.update(overrides or {})
+            cell = make_cell(settings, where=self.name).canonical()
+            params = cell.params()
+            # a setting the policy ignores reads None (the seed policy has no encoding)
+            labels = {axis: variants[axis] if axis in variants else params[axis] for axis in self.grid}
+            if only and any(str({**params, **labels}.get(k)) != v for k, v in only.items()):
+                continue
+            index = cells.setdefault(cell, len(cells))
+            for seed in self.seeds:
+                trial = Trial(self.name, cell, seed, labels=labels, cell_index=index)
+                if trial.id not in seen:
+                    seen.add(trial.id)
+                    out.append(trial)
+        return out
+
+
+def make_cell(settings: dict, where: str = "settings") -> CellSpec:
+    valid = {f.name: f for f in fields(CellSpec)}
+    unknown = [k for k in settings if k not in valid]
+    if unknown:
+        raise ExperimentError(f"{where}: unknown setting '{unknown[0]}'; valid: {', '.join(valid)}")
+    values = dict(settings)
+    if isinstance(values.get("prompt_parts"), list):
+        values["prompt_parts"] = tuple(values["prompt_parts"])
+    for name in ("duration", "temperature", "llm_after", "seed_start"):
+        if isinstance(values.get(name), int) and not isinstance(values.get(name), bool):
+            values[name] = float(values[name])
+    return CellSpec(**values)
+
+
+def parse_overrides(items: list[str]) -> dict:
+    """`--set key=value` pairs; values are read as TOML (numbers, booleans, lists), else as text."""
+    out = {}
+    for item in items:
+        key, sep, text = item.partition("=")
+        if not sep or not key:
+            raise ExperimentError(f"--set expects KEY=VALUE, got '{item}'")
+        try:
+            out[key] = tomllib.loads(f"v = {text}")["v"]
+        except tomllib.TOMLDecodeError:
+            out[key] = text
+    make_cell(out, where="--set")
+    return out
+
+
+def available_experiments() -> list[str]:
+    return sorted(p.stem for p in EXPERIMENTS_DIR.glob("*.toml"))
+
+
+def load_experiment(name_or_path: str) -> Experiment:
+    """A shipped experiment by name (see `bench sweep --list`) or a TOML file by path."""
+    path = Path(name_or_path)
+    if not path.is_file():
+        shipped = EXPERIMENTS_DIR / f"{name_or_path}.toml"
+        if not shipped.is_file():
+            raise ExperimentError(f"no experiment file '{name_or_path}'; shipped experiments: "
+                                  f"{', '.join(available_experiments())} (or give a path to a .toml)")
+        path = shipped
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as err:
+        raise ExperimentError(f"{path}: not valid TOML: {err}") from None
+    allowed = {"name", "title", "command", "seeds", "fixed", "grid", "variants"}
+    unknown = [k for k in data if k not in allowed]
+    if unknown:
+        raise ExperimentError(f"{path}: unknown key '{unknown[0]}'; valid: {', '.join(sorted(allowed))}")
+    grid, variants = data.get("grid", {}), data.get("variants", {})
+    for axis, values in grid.items():
+        if not isinstance(values, list) or not values:
+            raise ExperimentError(f"{path}: grid.{axis} must be a non-empty list")
+        if axis in variants:
+            missing = [v for v in values if v not in variants[axis]]
+            if missing:
+                raise ExperimentError(f"{path}: grid.{axis} names variant '{missing[0]}', not in "
+                                      f"[variants.{axis}]: {', '.join(variants[axis])}")
+    seeds = data.get("seeds", [0, 1, 2, 3, 4])
+    if isinstance(seeds, int):
+        seeds = list(range(seeds))
+    if not seeds or not all(isinstance(s, int) for s in seeds):
+        raise ExperimentError(f"{path}: seeds must be a count or a list of integers")
+    experiment = Experiment(name=data.get("name", path.stem), title=data.get("title", path.stem),
+                            command=data.get("command", ""), fixed=data.get("fixed", {}), grid=grid,
+                            variants=variants, seeds=tuple(seeds), source=path)
+    try:
+        experiment.trials()  # every cell must build: unknown settings fail here, before any trial runs
+    except ExperimentError:
+        raise
+    except (TypeError, ValueError) as err:
+        raise ExperimentError(f"{path}: {err}") from None
+    return experiment

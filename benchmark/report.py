@@ -1,0 +1,222 @@
+"""Comparison tables and figures from a results store.
+
+    bench report results/normalization                 # reports/normalization.md + figures
+    bench report results/cross_engine --format html
+
+One table per experiment in the paper's shape: a row per cell of the grid with the trial
+count, normalized walking time (NWT), success rate, speed and drift, and for LLM cells the
+input/output tokens (the model's and GPT-4's), parse failures and latency. When engines are
+an axis, a second table puts them side by side. Figures (PNG, in OUT/figures): bars of NWT
+and success per cell, and the front-left leg's joint trajectories of the seed policy against
+the LLM (or across engines when there is no LLM).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+FORMATS = ("md", "html", "csv")
+METRICS = {  # column in the store -> (heading, aggregation, digits)
+    "nwt": ("NWT", "mean", 3),
+    "success": ("success rate", "mean", 2),
+    "mean_vx": ("vx (m/s)", "mean", 2),
+    "distance_m": ("distance (m)", "mean", 2),
+    "abs_drift_m": ("|drift| (m)", "mean", 2),
+    "input_tokens": ("input tokens", "mean", 0),
+    "output_tokens": ("output tokens", "mean", 0),
+    "gpt4_input_tokens": ("GPT-4 input tokens", "mean", 0),
+    "gpt4_output_tokens": ("GPT-4 output tokens", "mean", 0),
+    "parse_failures": ("parse failures", "sum", 0),
+    "queries": ("queries", "sum", 0),
+    "latency_mean_s": ("latency (s)", "mean", 2),
+}
+LEG = "FL"  # the leg the trajectory figure shows, as in the paper
+
+
+def axes_of(frame: pd.DataFrame) -> list[str]:
+    """The experiment's grid axes, in the order of its file."""
+    axes: list[str] = []
+    for text in frame["axes"].dropna().unique():
+        axes += [a for a in json.loads(text) if a not in axes]
+    return axes
+
+
+def summary_table(frame: pd.DataFrame) -> pd.DataFrame:
+    """One row per cell: trial count and the mean (or sum) of every metric present."""
+    frame = frame.assign(abs_drift_m=frame["lateral_drift_m"].abs())
+    axes = axes_of(frame)
+    present = {k: v for k, v in METRICS.items() if k in frame and frame[k].notna().any()}
+    keys = frame[axes].astype(str).replace({"None": "-", "nan": "-"})
+    grouped = frame.assign(**{a: keys[a] for a in axes}).groupby(axes, sort=False)
+    table = grouped.agg(trials=("trial_id", "count"), **{k: (k, agg) for k, (_, agg, _) in present.items()})
+    for key, (_, _, digits) in present.items():
+        table[key] = table[key].round(digits)
+    return table.rename(columns={k: heading for k, (heading, _, _) in present.items()}).reset_index()
+
+
+def engine_table(frame: pd.DataFrame) -> pd.DataFrame | None:
+    """Engines side by side ("success / NWT" per engine) when the grid has engines and other axes."""
+    axes = axes_of(frame)
+    if "sim" not in axes or len(axes) < 2:
+        return None
+    rest = [a for a in axes if a != "sim"]
+    cells = frame.groupby([*rest, "sim"], sort=False).agg(success=("success", "mean"), nwt=("nwt", "mean"))
+    text = cells.apply(lambda r: f"{r['success']:.2f} / {r['nwt']:.2f}", axis=1).rename("success / NWT")
+    wide = text.unstack("sim")
+    order = [s for s in frame["sim"].unique() if s in wide.columns]
+    return wide[order].fillna("-").reset_index()
+
+
+def to_markdown(table: pd.DataFrame) -> str:
+    def cell(v) -> str:
+        if isinstance(v, float):
+            return f"{v:g}" if not np.isnan(v) else "-"
+        return str(v).replace("|", "\\|")
+
+    head = "| " + " | ".join(cell(c) for c in table.columns) + " |"
+    rule = "|" + "|".join("---" for _ in table.columns) + "|"
+    rows = ["| " + " | ".join(cell(v) for v in row) + " |" for row in table.itertuples(index=False)]
+    return "\n".join([head, rule, *rows])
+
+
+def bar_figure(frame: pd.DataFrame, table: pd.DataFrame, path: Path, title: str) -> Path:
+    """NWT and success rate per cell, as bars (grouped by engine when engines are an axis)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    axes = axes_of(frame)
+    hue = "sim" if "sim" in axes and len(axes) > 1 else None
+    groups = [a for a in axes if a != hue]
+    labels = table[groups].astype(str).agg("\n".join, axis=1) if groups else pd.Series(["all"] * len(table))
+    x_labels = list(dict.fromkeys(labels))
+    hues = list(dict.fromkeys(table[hue])) if hue else [None]
+    fig, panels = plt.subplots(1, 2, figsize=(max(6.0, 1.1 * len(x_labels) * max(1, len(hues)) ** 0.5 + 3), 3.6),
+                               constrained_layout=True)
+    width = 0.8 / len(hues)
+    for panel, metric in zip(panels, ("NWT", "success rate")):
+        for i, h in enumerate(hues):
+            rows = table if h is None else table[table[hue] == h]
+            row_labels = labels[rows.index]
+            xs = [x_labels.index(label) + (i - (len(hues) - 1) / 2) * width for label in row_labels]
+            panel.bar(xs, rows[metric], width=width * 0.95, label=h)
+        panel.set_xticks(range(len(x_labels)), x_labels, fontsize=8)
+        panel.set_ylim(0, 1.05)
+        panel.set_title(metric)
+        panel.grid(axis="y", alpha=0.3)
+        if hue:
+            panel.legend(fontsize=8, title="engine", title_fontsize=8)
+    fig.suptitle(title, fontsize=10)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def trajectory_figure(frame: pd.DataFrame, path: Path) -> Path | None:
+    """The front-left leg's joint angles over one trial: the seed policy against the best LLM cell
+    (same engine, robot, terrain, seed); without LLM trials, the first seed across cells."""
+    from robots import CANONICAL_JOINTS
+
+    if "traj_joint_pos" not in frame:
+        return None
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    first = frame.sort_values("seed").iloc[0]
+    same = frame[(frame["robot"] == first["robot"]) & (frame["terrain"] == first["terrain"])
+                 & (frame["seed"] == first["seed"])]
+    llm = same[same["policy"] == "llm"]
+    if not llm.empty:
+        best_cell = frame[frame["policy"] == "llm"].groupby("cell_id")["nwt"].mean().idxmax()
+        best = llm[llm["cell_id"] == best_cell]
+        chosen = pd.concat([same[(same["policy"] != "llm") & (same["sim"] == best["sim"].iloc[0])], best])
+    else:
+        chosen = same.drop_duplicates("cell_id").head(6)
+    axes = axes_of(frame)
+    joints = [i for i, name in enumerate(CANONICAL_JOINTS) if name.startswith(LEG + "_")]
+    fig, panels = plt.subplots(len(joints), 1, figsize=(8, 6), sharex=True, constrained_layout=True)
+    for _, row in chosen.iterrows():
+        q = np.array([np.asarray(step) for step in row["traj_joint_pos"]])
+        t = np.arange(1, len(q) + 1) * row["control_dt"]
+        label = " ".join(str(row[a]) for a in axes if str(row[a]) not in ("None", "nan"))
+        for panel, j in zip(panels, joints):
+            panel.plot(t, q[:, j], lw=1.2, label=label)
+            panel.set_ylabel(f"{CANONICAL_JOINTS[j]} (rad)", fontsize=8)
+        if row["policy"] == "llm":
+            for panel in panels:
+                panel.axvline(row["eval_start"], color="k", ls=":", lw=1)
+    panels[0].legend(fontsize=8, ncols=3)
+    panels[-1].set_xlabel("time (s)")
+    fig.suptitle(f"{LEG} leg joint positions: {first['robot']} / {first['terrain']}, seed {first['seed']}"
+                 + (" (dotted: LLM takes over)" if not llm.empty else ""), fontsize=10)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def _title_and_command(name: str, frame: pd.DataFrame) -> tuple[str, list[str]]:
+    from benchmark.experiment import ExperimentError, load_experiment
+
+    try:
+        title = load_experiment(name).title
+    except ExperimentError:
+        title = name
+    commands = [c for c in frame.get("sweep_command", pd.Series(dtype=str)).dropna().unique()]
+    return title, commands
+
+
+def write_reports(frame: pd.DataFrame, out: Path, fmt: str = "md") -> list[Path]:
+    """Tables (`OUT/EXPERIMENT.FMT`) and figures (`OUT/figures/EXPERIMENT_*.png`) per experiment."""
+    if fmt not in FORMATS:
+        raise ValueError(f"unknown format '{fmt}'; valid: {', '.join(FORMATS)}")
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    for name, group in frame.groupby("experiment", sort=False):
+        group = group.sort_values(["cell_index", "seed"]).reset_index(drop=True)
+        table, engines = summary_table(group), engine_table(group)
+        title, commands = _title_and_command(str(name), group)
+        bars = bar_figure(group, table, out / "figures" / f"{name}_bars.png", title)
+        traj = trajectory_figure(group, out / "figures" / f"{name}_trajectories.png")
+        figures = [p for p in (bars, traj) if p is not None]
+        path = out / f"{name}.{fmt}"
+        if fmt == "csv":
+            table.to_csv(path, index=False)
+        elif fmt == "html":
+            parts = [f"<h1>{title}</h1>", table.to_html(index=False)]
+            if engines is not None:
+                parts += ["<h2>Engines side by side (success / NWT)</h2>", engines.to_html(index=False)]
+            parts += [f'<img src="figures/{p.name}" alt="{p.stem}">' for p in figures]
+            path.write_text("\n".join(parts) + "\n")
+        else:
+            path.write_text(_markdown_report(str(name), title, commands, group, table, engines, figures))
+        written += [path, *figures]
+    return written
+
+
+def _markdown_report(name: str, title: str, commands: list[str], group: pd.DataFrame, table: pd.DataFrame,
+                     engines: pd.DataFrame | None, figures: list[Path]) -> str:
+    versions = json.loads(group["versions"].dropna().iloc[0]) if "versions" in group and group["versions"].notna().any() else {}
+    commits = sorted(str(c)[:10] for c in group.get("git_commit", pd.Series(dtype=str)).dropna().unique())
+    lines = [f"# {title}", "",
+             f"Experiment `{name}`: {len(group)} trials in {group['cell_id'].nunique()} cells, "
+             f"seeds {sorted(group['seed'].unique().tolist())}. NWT and success cover the evaluated phase only "
+             "(for the LLM, from its takeover to the end)."]
+    if commands:
+        lines += ["", "Made with:", "", *[f"    {c}" for c in commands]]
+    lines += ["", to_markdown(table)]
+    if engines is not None:
+        lines += ["", "Engines side by side (success rate / NWT):", "", to_markdown(engines)]
+    lines += ["", *[f"![{p.stem}](figures/{p.name})" for p in figures], ""]
+    if versions or commits:
+        lines += [f"Versions: {', '.join(f'{k} {v}' for k, v in versions.items())}; "
+                  f"git commit {', '.join(commits) or 'unknown'}.", ""]
+    return "\n".join(lines)

@@ -367,7 +367,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         return 0
     try:
         outcome = run_sweep(trials, store, workers=args.workers, executor=args.executor, address=args.ray_address,
-                            requests_per_minute=args.rate_limit, threads=args.threads)
+                            requests_per_minute=args.rate_limit, threads=args.threads,
+                            command=" ".join(["bench", *args.argv]))
     except (TrialError, LLMError) as err:
         print(f"bench: error: {err} ({len(store.done_ids())} trial(s) stored in {store.root}; "
               "run the same command again to resume)", file=sys.stderr)
@@ -635,7 +636,9 @@ def cmd_perf(args: argparse.Namespace) -> int:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     try:
+        argv = sys.argv[1:] if argv is None else argv
         args = parser.parse_args(argv)
+        args.argv = argv  # recorded beside results, to re-run them
         return args.func(args)
     except (CliError, UnknownNameError, ValueError) as err:
         print(f"bench: error: {err}", file=sys.stderr)

@@ -45,13 +45,17 @@ def axes_of(frame: pd.DataFrame) -> list[str]:
     return axes
 
 
+def _with_axis_text(frame: pd.DataFrame, axes: list[str]) -> pd.DataFrame:
+    """Axis values as text, "-" where the cell's policy does not use the setting (groupby drops NaN keys)."""
+    return frame.assign(**{a: frame[a].map(lambda v: "-" if pd.isna(v) else str(v)) for a in axes})
+
+
 def summary_table(frame: pd.DataFrame) -> pd.DataFrame:
     """One row per cell: trial count and the mean (or sum) of every metric present."""
     frame = frame.assign(abs_drift_m=frame["lateral_drift_m"].abs())
     axes = axes_of(frame)
     present = {k: v for k, v in METRICS.items() if k in frame and frame[k].notna().any()}
-    keys = frame[axes].astype(str).replace({"None": "-", "nan": "-"})
-    grouped = frame.assign(**{a: keys[a] for a in axes}).groupby(axes, sort=False)
+    grouped = _with_axis_text(frame, axes).groupby(axes, sort=False)
     table = grouped.agg(trials=("trial_id", "count"), **{k: (k, agg) for k, (_, agg, _) in present.items()})
     for key, (_, _, digits) in present.items():
         table[key] = table[key].round(digits)
@@ -64,7 +68,7 @@ def engine_table(frame: pd.DataFrame) -> pd.DataFrame | None:
     if "sim" not in axes or len(axes) < 2:
         return None
     rest = [a for a in axes if a != "sim"]
-    cells = frame.groupby([*rest, "sim"], sort=False).agg(success=("success", "mean"), nwt=("nwt", "mean"))
+    cells = _with_axis_text(frame, axes).groupby([*rest, "sim"], sort=False).agg(success=("success", "mean"), nwt=("nwt", "mean"))
     text = cells.apply(lambda r: f"{r['success']:.2f} / {r['nwt']:.2f}", axis=1).rename("success / NWT")
     wide = text.unstack("sim")
     order = [s for s in frame["sim"].unique() if s in wide.columns]

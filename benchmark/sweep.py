@@ -210,7 +210,7 @@ def _ray(todo: list[Trial], settings: WorkerSettings, workers: int, address: str
             ray.cancel(ref, force=True)
 
 
-def run_metadata() -> dict:
+def run_metadata(command: str | None = None) -> dict:
     """What a row needs to be reproduced: package versions, git commit, machine."""
     versions = {"python": platform.python_version()}
     for name in PACKAGES:
@@ -227,7 +227,6 @@ def run_metadata() -> dict:
                                     capture_output=True, text=True, check=True).stdout.strip())
     except (OSError, subprocess.CalledProcessError):
         pass
-    command = " ".join(["bench", *sys.argv[1:]]) if Path(sys.argv[0]).name == "bench" else None
     return {"sweep_command": command, "promptwalk_version": versions.get("promptwalk"), "versions": json.dumps(versions),
             "git_commit": commit, "git_dirty": dirty, "host": socket.gethostname(), "platform": platform.platform()}
 
@@ -242,7 +241,7 @@ class SweepOutcome:
 
 def run_sweep(trials: list[Trial], store: ResultStore, workers: int = 1, executor: str = "local",
               address: str | None = None, requests_per_minute: float | None = None,
-              threads: int | None = None) -> SweepOutcome:
+              threads: int | None = None, command: str | None = None) -> SweepOutcome:
     """Run the trials not yet in `store`, writing each as it finishes. Raises on the first failed trial
     (what finished before is stored)."""
     if executor not in EXECUTORS:
@@ -254,7 +253,7 @@ def run_sweep(trials: list[Trial], store: ResultStore, workers: int = 1, executo
     settings = WorkerSettings(
         threads=threads or max(1, (os.cpu_count() or 1) // workers),
         requests_per_minute=None if requests_per_minute is None else requests_per_minute / workers)
-    meta = run_metadata()
+    meta = run_metadata(command)
     start = time.perf_counter()
     if not todo:
         rows: Iterator[dict] = iter(())

@@ -1,0 +1,181 @@
+"""Experiment files, sweeps (local processes and Ray), the resumable results store and reports."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from benchmark.experiment import ExperimentError, available_experiments, load_experiment
+from benchmark.report import write_reports
+from benchmark.store import ResultStore, load_results
+from benchmark.sweep import run_sweep
+
+TINY = Path(__file__).parent / "data" / "tiny_sweep.toml"
+BENCH = [sys.executable, "-m", "benchmark.cli"]
+
+
+def _sweep(results: Path, *extra: str) -> subprocess.Popen:
+    return subprocess.Popen([*BENCH, "sweep", str(TINY), "--workers", "2", "--results", str(results), *extra],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+
+
+def _metrics(frame: pd.DataFrame) -> pd.DataFrame:
+    return frame.set_index("trial_id").sort_index()[["terrain", "seed", "nwt", "success", "mean_height_m"]]
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory) -> pd.DataFrame:
+    """The tiny grid run start to finish with two worker processes."""
+    results = tmp_path_factory.mktemp("uninterrupted")
+    proc = _sweep(results)
+    out, err = proc.communicate(timeout=300)
+    assert proc.returncode == 0, err
+    assert "4 trial(s) run, 0 already stored" in out
+    return load_results(results)
+
+
+def test_shipped_experiments_expand_into_the_papers_grids():
+    assert set(available_experiments()) >= {"normalization", "history", "observation", "description", "cross_engine"}
+    norm = load_experiment("normalization").trials()
+    # The seed policy ignores the encoding: one seed-policy cell, not five, beside the five LLM cells.
+    assert len({t.cell for t in norm}) == 6 and len(norm) == 30
+    assert sorted({t.cell.encoding for t in norm if t.cell.uses_llm}) == ["E1", "E2", "E3", "E4", "E5"]
+    assert all(t.cell.observation == "O2" and t.cell.duration == 20.0 for t in norm if t.cell.uses_llm)
+    assert [len(t.cell.prompt_parts) for t in load_experiment("description").trials()[::5]] == [1, 2, 3, 4, 5]
+    assert sorted({t.cell.history for t in load_experiment("history").trials()}) == [0, 10, 30, 50]
+    cross = load_experiment("cross_engine")
+    assert len({t.cell for t in cross.trials()}) == 3 * 2 * 2 * 2
+    rl = cross.trials(only={"controller": "rl"})
+    assert len(rl) == 60 and {t.cell.duration for t in rl} == {10.0}
+    # Ids are stable (a resumed sweep finds its trials) and unique.
+    assert [t.id for t in rl] == [t.id for t in cross.trials(only={"controller": "rl"})]
+    assert len({t.id for t in cross.trials()}) == len(cross.trials())
+
+
+@pytest.mark.parametrize("text, message", [
+    ("[fixed]\nengine = 'mujoco'\n", "unknown setting 'engine'; valid: sim, robot"),
+    ("[grid]\nterrain = 'flat'\n", "grid.terrain must be a non-empty list"),
+    ("[grid]\ncontroller = ['fast']\n[variants.controller]\nslow = { policy = 'rl' }\n",
+     "names variant 'fast', not in [variants.controller]: slow"),
+    ("seeds = 'five'\n", "seeds must be a count or a list of integers"),
+    ("[grid\n", "not valid TOML"),
+    ("tittle = 'x'\n", "unknown key 'tittle'"),
+])
+def test_malformed_experiment_files_are_one_clear_line(tmp_path, text, message):
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(ExperimentError) as err:
+        load_experiment(str(path))
+    assert message in str(err.value) and "\n" not in str(err.value)
+
+
+def test_bad_sweep_input_exits_2_with_one_line(tmp_path):
+    for args, message in [(["sweep", "nope"], "shipped experiments: cross_engine, description"),
+                          (["sweep", str(TINY), "--set", "sim=gazebo", "--results", str(tmp_path)],
+                           "unknown simulator 'gazebo'"),
+                          (["sweep", str(TINY), "--set", "colour=red"], "--set: unknown setting 'colour'"),
+                          (["sweep", str(TINY), "--only", "terrain=lava"], "no cell of 'tiny' matches")]:
+        proc = subprocess.run([*BENCH, *args], capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 2, proc.stderr
+        lines = [line for line in proc.stderr.splitlines() if line.startswith("bench:")]
+        assert len(lines) == 1 and message in lines[0], proc.stderr
+    assert not any(tmp_path.iterdir())  # nothing ran, nothing was written
+
+
+def test_dry_run_lists_cells_and_missing_trials(tmp_path):
+    proc = subprocess.run([*BENCH, "sweep", str(TINY), "--dry-run", "--results", str(tmp_path)],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert "tiny: 2 cells, 4 trials, 4 missing" in proc.stdout
+    assert "pybullet/a1/flat/stand" in proc.stdout and "pybullet/a1/rough/stand" in proc.stdout
+
+
+def test_sweep_killed_mid_run_resumes_without_duplicates(tmp_path, uninterrupted):
+    results = tmp_path / "killed"
+    store = ResultStore(results)
+    proc = _sweep(results)
+    deadline = time.monotonic() + 240
+    while not store.done_ids() and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.02)
+    os.killpg(proc.pid, signal.SIGKILL)  # the driver and its workers, no chance to clean up
+    proc.wait()
+    stored_at_kill = len(store.done_ids())
+    assert 1 <= stored_at_kill < 4, "the kill came after the sweep finished: the test proves nothing"
+    resumed = _sweep(results)
+    out, err = resumed.communicate(timeout=300)
+    assert resumed.returncode == 0, err
+    assert f"{4 - stored_at_kill} trial(s) run, {stored_at_kill} already stored" in out
+    frame = load_results(results)
+    assert len(frame) == 4 and frame["trial_id"].is_unique
+    pd.testing.assert_frame_equal(_metrics(frame), _metrics(uninterrupted))
+    assert len(pd.read_parquet(results / "results.parquet")) == 4
+
+
+def test_ray_executor_on_a_local_ray_instance(tmp_path, uninterrupted):
+    pytest.importorskip("ray")
+    proc = subprocess.run([*BENCH, "sweep", str(TINY), "--workers", "2", "--executor", "ray",
+                           "--results", str(tmp_path)], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert "4 trial(s) run" in proc.stdout and "ray worker" in proc.stdout
+    frame = load_results(tmp_path)
+    pd.testing.assert_frame_equal(_metrics(frame), _metrics(uninterrupted))
+    assert frame["git_commit"].notna().all() and frame["versions"].str.contains("pybullet").all()
+
+
+def test_rows_carry_parameters_metrics_versions_and_trajectories(uninterrupted):
+    row = uninterrupted.iloc[0]
+    assert row["experiment"] == "tiny" and row["sim"] == "pybullet" and row["policy"] == "stand"
+    assert row["duration"] == 60.0 and row["control_steps"] == 600 and len(row["traj_joint_pos"]) == 600
+    assert len(row["traj_joint_pos"][0]) == 12 
+    assert row["sweep_command"].startswith("bench sweep ") and "--workers 2" in row["sweep_command"]
+    assert pd.isna(row.get("encoding")) and row["promptwalk_version"] == "0.1.0"
+
+
+def test_report_writes_markdown_html_csv_and_png_figures(tmp_path, uninterrupted):
+    written = write_reports(uninterrupted, tmp_path, "md")
+    md = (tmp_path / "tiny.md").read_text()
+    table = [line for line in md.splitlines() if line.startswith("|")]
+    assert table[0].startswith("| terrain | trials | NWT | success rate")
+    assert [line.split(" | ")[0] for line in table[2:]] == ["| flat", "| rough"]  # grid order
+    assert all(" | 2 | 1 | 1 |" in line for line in table[2:])
+    for name in ("tiny_bars.png", "tiny_trajectories.png"):
+        png = tmp_path / "figures" / name
+        assert png in written and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 5000
+        assert f"](figures/{name})" in md
+    write_reports(uninterrupted, tmp_path, "csv")
+    assert len(pd.read_csv(tmp_path / "tiny.csv")) == 2
+    write_reports(uninterrupted, tmp_path, "html")
+    assert "<table" in (tmp_path / "tiny.html").read_text()
+
+
+def test_report_of_a_missing_or_empty_store_is_one_line(tmp_path):
+    for target, message in [(tmp_path / "nothing", "no results at"), (tmp_path, "holds no trials yet")]:
+        proc = subprocess.run([*BENCH, "report", str(target), "--out", str(tmp_path / "out")],
+                              capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 2 and message in proc.stderr and proc.stderr.count("\n") == 1, proc.stderr
+
+
+def test_llm_cells_sweep_with_the_embedded_model_and_report_tokens(tmp_path, monkeypatch):
+    monkeypatch.setenv("PROMPTWALK_CACHE", str(tmp_path / "cache"))
+    path = tmp_path / "llm.toml"
+    path.write_text('name = "llm_tiny"\nseeds = [0]\n[fixed]\nsim = "mujoco"\nduration = 2.3\nllm_after = 2.0\n'
+                    'history = 5\nhistory_mode = "block"\n[grid]\npolicy = ["rl", "llm"]\nencoding = ["E4", "E5"]\n')
+    trials = load_experiment(str(path)).trials()
+    assert len(trials) == 3  # one seed-policy cell, two LLM cells
+    outcome = run_sweep(trials, ResultStore(tmp_path / "results"), workers=1, threads=1)
+    assert outcome.ran == 3
+    frame = load_results(tmp_path / "results")
+    llm = frame[frame["policy"] == "llm"]
+    assert (llm["queries"] >= 1).all() and (llm["input_tokens"] > llm["gpt4_input_tokens"]).all()
+    assert (llm["eval_start"] == 2.0).all() and frame[frame["policy"] == "rl"]["encoding"].isna().all()
+    write_reports(frame, tmp_path / "reports")
+    md = (tmp_path / "reports" / "llm_tiny.md").read_text()
+    assert "| policy | encoding | trials | NWT |" in md and "GPT-4 input tokens" in md and "| rl | - | 1 |" in md
+    assert (tmp_path / "reports" / "figures" / "llm_tiny_trajectories.png").is_file()

@@ -96,8 +96,9 @@ class LocomotionEnv(gym.Env):
         if self._push_every and loop.steps % self._push_every == 0:
             self.sim.push_base(self.np_random.uniform(-1.0, 1.0, 2) * self.randomization.push_velocity)
         air = self._air.update(loop.state.foot_contact, loop.dt, self.rewards.air_time_target)
+        x, y, z = loop.state.base_pos
         reward = walking_reward(loop.state, self.robot, loop.command, loop.action, last_action, air, self.rewards,
-                                loop.heading_error)
+                                loop.heading_error, base_height=float(z) - self.terrain.height_at(x, y))
         terminated = loop.fall is not None
         truncated = loop.steps >= self.max_steps
         info = {"fall": loop.fall} if terminated else {}

@@ -31,6 +31,8 @@ class RewardWeights:
     action_rate: float = -0.02  # x mean((a - a_prev)^2)
     air_time: float = 1.0  # x sum over touchdowns of (air time - air_time_target)
     air_time_target: float = 0.2  # s: two control periods off the ground
+    height: float = 0.0  # x max(0, height_floor - base height over the terrain): against crouching
+    height_floor: float = 0.0  # m
 
 
 class FeetAirTime:
@@ -55,7 +57,7 @@ class FeetAirTime:
 
 def walking_reward(state: RobotState, robot: Robot, command: np.ndarray, action: np.ndarray,
                    last_action: np.ndarray, air_time_reward: float, w: RewardWeights,
-                   heading_error: float = 0.0) -> float:
+                   heading_error: float = 0.0, base_height: float = math.inf) -> float:
     vx, vy, vz = state.base_lin_vel
     wx, wy, wz = state.base_ang_vel
     gx, gy, _ = state.projected_gravity
@@ -72,5 +74,6 @@ def walking_reward(state: RobotState, robot: Robot, command: np.ndarray, action:
         + w.torque * float(np.mean((state.joint_torque / robot.torque_limit) ** 2))
         + w.action_rate * float(np.mean((action - last_action) ** 2))
         + w.air_time * air_time_reward
+        + w.height * max(0.0, w.height_floor - base_height)
     )
     return max(total, 0.0)

@@ -327,7 +327,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
     from benchmark.experiment import available_experiments, load_experiment, parse_overrides
     from benchmark.store import ResultStore
-    from benchmark.sweep import TrialError, run_sweep
+    from benchmark.sweep import TrialError, run_sweep, validate
 
     if args.list or args.experiment is None:
         if args.experiment is None and not args.list:
@@ -349,6 +349,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         raise CliError("--executor ray needs Ray: pip install -e '.[ray]'")
     if not trials:
         raise CliError(f"no cell of '{experiment.name}' matches --only {' '.join(args.only)}")
+    for cell in dict.fromkeys(t.cell for t in trials):
+        validate(cell)
     store = ResultStore(Path(args.results or f"results/{experiment.name}"))
     done = store.done_ids()
     if args.dry_run:

@@ -115,7 +115,6 @@ class Trial:
 class Experiment:
     name: str
     title: str
-    command: str  # how the committed reference results were made, when there are any
     fixed: dict
     grid: dict  # axis -> list of values; an axis named after a variants table picks from it
     variants: dict  # axis -> {variant name -> settings}
@@ -200,7 +199,7 @@ def load_experiment(name_or_path: str) -> Experiment:
         data = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as err:
         raise ExperimentError(f"{path}: not valid TOML: {err}") from None
-    allowed = {"name", "title", "command", "seeds", "fixed", "grid", "variants"}
+    allowed = {"name", "title", "seeds", "fixed", "grid", "variants"}
     unknown = [k for k in data if k not in allowed]
     if unknown:
         raise ExperimentError(f"{path}: unknown key '{unknown[0]}'; valid: {', '.join(sorted(allowed))}")
@@ -219,7 +218,7 @@ def load_experiment(name_or_path: str) -> Experiment:
     if not seeds or not all(isinstance(s, int) for s in seeds):
         raise ExperimentError(f"{path}: seeds must be a count or a list of integers")
     experiment = Experiment(name=data.get("name", path.stem), title=data.get("title", path.stem),
-                            command=data.get("command", ""), fixed=data.get("fixed", {}), grid=grid,
+                            fixed=data.get("fixed", {}), grid=grid,
                             variants=variants, seeds=tuple(seeds), source=path)
     try:
         experiment.trials()  # every cell must build: unknown settings fail here, before any trial runs

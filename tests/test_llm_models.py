@@ -8,6 +8,7 @@ import io
 import json
 import socket
 import threading
+import time
 import urllib.request
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
@@ -119,6 +120,55 @@ def test_server_errors_and_a_dead_server_are_one_clear_line():
     with pytest.raises(LLMError, match="cannot reach .* is the server running"):
         OpenAIModel("m", url=f"http://127.0.0.1:{dead}/v1", retries=1, backoff_s=0.01).complete(
             PROMPT, Sampling(), GRAMMAR)
+
+
+class CannedServer:
+    """A loopback OpenAI-compatible server that answers every completion at once with the same
+    twelve numbers; remembers when each request arrived."""
+
+    def __init__(self) -> None:
+        self.arrivals: list[float] = []
+        server = self
+
+        class Handler(BaseHTTPRequestHandler):
+            def do_POST(self):  # noqa: N802
+                self.rfile.read(int(self.headers["Content-Length"]))
+                server.arrivals.append(time.monotonic())
+                body = json.dumps({"choices": [{"text": " [" + ", ".join(["100"] * 12) + "]"}],
+                                   "usage": {"prompt_tokens": 40, "completion_tokens": 36}}).encode()
+                self.send_response(200)
+                self.send_header("Content-Type", "application/json")
+                self.end_headers()
+                self.wfile.write(body)
+
+            def log_message(self, *args):
+                pass
+
+        self.server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.url = f"http://127.0.0.1:{self.server.server_address[1]}/v1"
+        threading.Thread(target=self.server.serve_forever, daemon=True).start()
+
+    def close(self) -> None:
+        self.server.shutdown()
+
+
+def test_rate_limit_spaces_requests_to_a_remote_server():
+    server = CannedServer()
+    try:
+        free = OpenAIModel("m", url=server.url)
+        for _ in range(4):
+            assert parse_reply(free.complete(PROMPT, Sampling(), GRAMMAR).text, ENCODINGS["E5"]) is not None
+        unlimited = server.arrivals[-1] - server.arrivals[0]
+        server.arrivals.clear()
+        limited = OpenAIModel("m", url=server.url, requests_per_minute=300)  # one request per 0.2 s
+        for _ in range(4):
+            limited.complete(PROMPT, Sampling(), GRAMMAR)
+        gaps = [b - a for a, b in zip(server.arrivals, server.arrivals[1:])]
+        assert unlimited < 0.15 and min(gaps) >= 0.19, (unlimited, gaps)
+    finally:
+        server.close()
+    with pytest.raises(ValueError, match="requests per minute must be > 0"):
+        OpenAIModel("m", requests_per_minute=0)
 
 
 def test_unknown_model_spec_is_clear():

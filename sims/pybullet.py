@@ -56,6 +56,7 @@ class PybulletSim:
         with _quiet_stdout():
             self.client = p = BulletClient(connection_mode=pybullet.DIRECT)
         p.setTimeStep(physics.dt)
+        p.setPhysicsEngineParameter(deterministicOverlappingPairs=1)
         p.setGravity(0.0, 0.0, physics.gravity)
         self.ground = self._load_terrain()
         self.body = p.loadURDF(str(robot.urdf), [0.0, 0.0, robot.init_height], flags=p.URDF_USE_INERTIA_FROM_FILE)
@@ -74,6 +75,9 @@ class PybulletSim:
         self._nominal_mass = p.getDynamicsInfo(self.body, -1)[0]
         self._strength = 1.0
         self.time = 0.0
+        # Bullet keeps contact points and warm-start impulses across a teleport; restoring this
+        # snapshot at every reset makes a trial independent of the trials the sim ran before.
+        self._fresh = p.saveState()
 
     def _load_terrain(self) -> int:
         p, t = self.client, self.terrain
@@ -93,6 +97,7 @@ class PybulletSim:
 
     def reset(self, seed: int = 0) -> RobotState:
         p, robot = self.client, self.robot
+        p.restoreState(self._fresh)
         p.resetBasePositionAndOrientation(self.body, self._com_world([0.0, 0.0, 0.0]), [0, 0, 0, 1])
         for joint, q in zip(self._joints, initial_joint_pos(robot, seed)):
             p.resetJointState(self.body, joint, q, 0.0)

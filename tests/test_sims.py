@@ -110,6 +110,22 @@ def test_seeds_perturb_the_initial_pose_reproducibly(make, sim_name):
     assert not np.allclose(a, b)
 
 
+@pytest.mark.parametrize("sim_name", ["mujoco", "pybullet"])
+def test_a_trial_does_not_depend_on_the_trials_before_it(make, sim_name):
+    """A sweep spreads a cell's trials over workers: seed 1 must walk the same after seed 0 or not.
+    (PyBullet keeps contact points across a teleport unless its state is restored.)"""
+    from benchmark.policies import make_policy
+
+    sim = make(sim_name, "a1", "rough")
+    policy = make_policy("rl", sim.robot)
+    walk = lambda seed: run_trial(sim, sim.robot, sim.terrain, policy, EpisodeConfig(4.0), seed)  # noqa: E731
+    first = walk(1)
+    walk(0)
+    again = walk(1)
+    assert first.distance_m > 1.0 and again.distance_m == first.distance_m
+    assert again.lateral_drift_m == first.lateral_drift_m
+
+
 @pytest.mark.parametrize("sim_name", available_sims())
 def test_an_exploding_simulation_is_a_failed_trial_with_a_reason(sim_name):
     """Absurd gains at a coarse timestep blow the integration up: reported, never a crash."""

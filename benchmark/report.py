@@ -113,8 +113,9 @@ def bar_figure(frame: pd.DataFrame, table: pd.DataFrame, path: Path, title: str)
         panel.set_ylim(0, 1.05)
         panel.set_title(metric)
         panel.grid(axis="y", alpha=0.3)
-        if hue:
-            panel.legend(fontsize=8, title="engine", title_fontsize=8)
+    if hue:
+        fig.legend(*panels[0].get_legend_handles_labels(), loc="outside right center", fontsize=8, title="engine",
+                   title_fontsize=8)
     fig.suptitle(title, fontsize=10)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
@@ -157,6 +158,8 @@ def trajectory_figure(frame: pd.DataFrame, path: Path) -> Path | None:
         if row["policy"] == "llm":
             for panel in panels:
                 panel.axvline(row["eval_start"], color="k", ls=":", lw=1)
+    takeover = float(chosen["eval_start"].max())
+    panels[-1].set_xlim(*((takeover - 2.0, takeover + 3.0) if takeover > 0 else (0.0, 5.0)))
     panels[0].legend(fontsize=8, ncols=3)
     panels[-1].set_xlabel("time (s)")
     fig.suptitle(f"{LEG} leg joint positions: {first['robot']} / {first['terrain']}, seed {first['seed']}"

@@ -168,8 +168,15 @@ def _quiet_worker() -> None:
 
 
 def _serial(todo: list[Trial], settings: WorkerSettings) -> Iterator[dict]:
-    for trial in todo:
-        yield run_in_worker(trial, settings)
+    """In this process; its engines and LLM are closed when the sweep ends."""
+    global _WORKER
+    try:
+        for trial in todo:
+            yield run_in_worker(trial, settings)
+    finally:
+        if _WORKER is not None:
+            _WORKER.close()
+            _WORKER = None
 
 
 def _processes(todo: list[Trial], settings: WorkerSettings, workers: int) -> Iterator[dict]:

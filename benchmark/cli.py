@@ -100,16 +100,14 @@ def _add_llm_options(parser: argparse.ArgumentParser) -> None:
 
 
 def _llm_config(args: argparse.Namespace):
-    from benchmark.llm.models import Sampling
-    from benchmark.llm.policy import LLMConfig
-    from benchmark.llm.prompt import PromptConfig
+    from benchmark.experiment import CellSpec
 
-    prompt = PromptConfig(parts=tuple(args.prompt_parts), history=args.history, encoding=args.encoding,
-                          observation=args.observation)
-    return LLMConfig(model=args.llm, url=args.llm_url, api=args.llm_api, prompt=prompt, seed_start=args.seed_start,
-                     llm_after=args.llm_after, history_mode=args.history_mode, constrained=not args.unconstrained,
-                     sampling=Sampling(temperature=args.temperature), price_in=args.price_in,
-                     price_out=args.price_out, cache=not args.no_cache, threads=args.threads)
+    cell = CellSpec(policy="llm", model=args.llm, url=args.llm_url, api=args.llm_api, history=args.history,
+                    history_mode=args.history_mode, prompt_parts=tuple(args.prompt_parts), encoding=args.encoding,
+                    observation=args.observation, constrained=not args.unconstrained, temperature=args.temperature,
+                    llm_after=args.llm_after, seed_start=args.seed_start)
+    return cell.llm_config(threads=args.threads, price_in=args.price_in, price_out=args.price_out,
+                           cache=not args.no_cache)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -87,6 +87,21 @@ class CellSpec:
     def eval_start(self) -> float:
         return float(self.llm_after) if self.uses_llm else 0.0
 
+    def llm_config(self, threads: int | None = None, requests_per_minute: float | None = None,
+                   price_in: float | None = None, price_out: float | None = None, cache: bool = True):
+        """The LLM policy's configuration for this cell (validates prompt parts, encoding, observation)."""
+        from benchmark.llm.models import Sampling
+        from benchmark.llm.policy import LLMConfig
+        from benchmark.llm.prompt import PromptConfig
+
+        prompt = PromptConfig(parts=tuple(self.prompt_parts), history=self.history, encoding=self.encoding,
+                              observation=self.observation)
+        return LLMConfig(model=self.model, url=self.url, api=self.api, prompt=prompt, seed_start=self.seed_start,
+                         llm_after=self.llm_after, history_mode=self.history_mode, constrained=self.constrained,
+                         sampling=Sampling(temperature=self.temperature), threads=threads,
+                         requests_per_minute=requests_per_minute, price_in=price_in, price_out=price_out,
+                         cache=cache)
+
     def label(self) -> str:
         return f"{self.sim}/{self.robot}/{self.terrain}/{self.policy}"
 

@@ -64,23 +64,10 @@ def validate(cell: CellSpec) -> None:
     if not cell.duration > 0:
         raise ValueError(f"duration must be > 0 s, got {cell.duration}")
     if cell.uses_llm:
-        config = llm_config(cell, WorkerSettings())
+        config = cell.llm_config()
         if config.llm_after >= cell.duration:
             raise ValueError(f"llm_after ({config.llm_after:g} s) must be before the end of the episode "
                              f"(duration {cell.duration:g} s)")
-
-
-def llm_config(cell: CellSpec, settings: WorkerSettings):
-    from benchmark.llm.models import Sampling
-    from benchmark.llm.policy import LLMConfig
-    from benchmark.llm.prompt import PromptConfig
-
-    prompt = PromptConfig(parts=tuple(cell.prompt_parts), history=cell.history, encoding=cell.encoding,
-                          observation=cell.observation)
-    return LLMConfig(model=cell.model, url=cell.url, api=cell.api, prompt=prompt, seed_start=cell.seed_start,
-                     llm_after=cell.llm_after, history_mode=cell.history_mode, constrained=cell.constrained,
-                     sampling=Sampling(temperature=cell.temperature), threads=settings.threads,
-                     requests_per_minute=settings.requests_per_minute)
 
 
 class _Worker:
@@ -108,7 +95,7 @@ class _Worker:
         from benchmark.llm.models import make_model
         from benchmark.llm.policy import LLMPolicy
 
-        config = llm_config(cell, settings)
+        config = cell.llm_config(threads=settings.threads, requests_per_minute=settings.requests_per_minute)
         key = (config.model, config.url, config.api, config.threads, config.requests_per_minute)
         if key not in self.models:
             self.models[key] = make_model(config.model, url=config.url, api=config.api, cache=config.cache,

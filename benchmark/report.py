@@ -34,6 +34,7 @@ METRICS = {  # column in the store -> (heading, aggregation, digits)
     "queries": ("queries", "sum", 0),
     "latency_mean_s": ("latency (s)", "mean", 2),
 }
+AGGREGATIONS = {"mean": "mean", "sum": lambda x: x.sum(min_count=1)}  # a sum over no values is "-", not 0
 LEG = "FL"  # the leg the trajectory figure shows, as in the paper
 
 
@@ -56,7 +57,7 @@ def summary_table(frame: pd.DataFrame) -> pd.DataFrame:
     axes = axes_of(frame)
     present = {k: v for k, v in METRICS.items() if k in frame and frame[k].notna().any()}
     grouped = _with_axis_text(frame, axes).groupby(axes, sort=False)
-    table = grouped.agg(trials=("trial_id", "count"), **{k: (k, agg) for k, (_, agg, _) in present.items()})
+    table = grouped.agg(trials=("trial_id", "count"), **{k: (k, AGGREGATIONS[agg]) for k, (_, agg, _) in present.items()})
     for key, (_, _, digits) in present.items():
         table[key] = table[key].round(digits)
     return table.rename(columns={k: heading for k, (heading, _, _) in present.items()}).reset_index()

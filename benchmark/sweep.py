@@ -13,6 +13,7 @@ the store, so workers need no shared disk.
 
 from __future__ import annotations
 
+import hashlib
 import importlib.metadata
 import json
 import multiprocessing
@@ -117,12 +118,14 @@ class _Worker:
             joint_pos.append([round(float(v), 4) for v in loop.state.joint_pos])
             joint_target.append([round(float(v), 4) for v in loop.targets])
 
+        weights = robot.urdf.parent / "policy.npz"  # the seed policy (rl, and the LLM's history)
+        seed_policy = hashlib.sha256(weights.read_bytes()).hexdigest()[:12] if weights.is_file() else None
         episode = EpisodeConfig(duration=cell.duration, eval_start=cell.eval_start)
         result = run_trial(sim, robot, sim.terrain, policy, episode, seed=trial.seed, on_step=keep)
         return {"experiment": trial.experiment, "trial_id": trial.id, "cell_id": trial.cell_id,
                 "cell_index": trial.cell_index,
                 **cell.params(), **trial.labels, "axes": json.dumps(list(trial.labels)), "eval_start": cell.eval_start, **result.to_dict(), "control_dt": 0.1,
-                "traj_joint_pos": joint_pos, "traj_joint_target": joint_target,
+                "seed_policy_sha256": seed_policy, "traj_joint_pos": joint_pos, "traj_joint_target": joint_target,
                 "worker": f"{socket.gethostname()}:{os.getpid()}"}
 
     def close(self) -> None:

@@ -77,6 +77,7 @@ class _Worker:
     def __init__(self) -> None:
         self.sims: dict[tuple, object] = {}
         self.models: dict[tuple, object] = {}
+        self.policies: dict[tuple, object] = {}  # stateless between trials: stand and the seed policy
 
     def sim(self, cell: CellSpec, robot, terrain):
         from sims import make_sim
@@ -92,7 +93,10 @@ class _Worker:
         from benchmark.policies import make_policy
 
         if not cell.uses_llm:
-            return make_policy(cell.policy, robot)
+            key = (cell.policy, cell.robot)
+            if key not in self.policies:
+                self.policies[key] = make_policy(cell.policy, robot)
+            return self.policies[key]
         from benchmark.llm.models import make_model
         from benchmark.llm.policy import LLMPolicy
 
@@ -123,8 +127,8 @@ class _Worker:
         episode = EpisodeConfig(duration=cell.duration, eval_start=cell.eval_start)
         result = run_trial(sim, robot, sim.terrain, policy, episode, seed=trial.seed, on_step=keep)
         return {"experiment": trial.experiment, "trial_id": trial.id, "cell_id": trial.cell_id,
-                "cell_index": trial.cell_index,
-                **cell.params(), **trial.labels, "axes": json.dumps(list(trial.labels)), "eval_start": cell.eval_start, **result.to_dict(), "control_dt": 0.1,
+                "cell_index": trial.cell_index, **cell.params(), **trial.labels, "axes": json.dumps(list(trial.labels)),
+                "eval_start": cell.eval_start, **result.to_dict(), "control_dt": sim.physics.control_dt,
                 "seed_policy_sha256": seed_policy, "traj_joint_pos": joint_pos, "traj_joint_target": joint_target,
                 "worker": f"{socket.gethostname()}:{os.getpid()}"}
 

@@ -141,7 +141,8 @@ def build_parser() -> argparse.ArgumentParser:
                            description=_doc("benchmark.train"),
                            formatter_class=argparse.RawDescriptionHelpFormatter)
     train.add_argument("--robot", default="a1", help=f"robot: {', '.join(available_robots())} (default a1)")
-    train.add_argument("--sim", default="mujoco", help="engine to train in (default mujoco)")
+    train.add_argument("--sim", nargs="+", default=["mujoco"],
+                       help="engine(s) to train in; several share the 8 environments (default mujoco)")
     train.add_argument("--steps", type=_positive(int), default=1_000_000, help="environment steps (default 1e6)")
     train.add_argument("--seed", type=int, default=0, help="seed of PPO and the environments (default 0)")
     train.add_argument("--out", default=None, help="folder for train_log.csv and policy.npz (default runs/train-ROBOT)")
@@ -455,8 +456,9 @@ def cmd_train(args: argparse.Namespace) -> int:
     from benchmark.train import train
 
     load_robot(args.robot)
-    if args.sim not in available_sims():
-        raise UnknownNameError("simulator", args.sim, available_sims())
+    for sim in args.sim:
+        if sim not in available_sims():
+            raise UnknownNameError("simulator", sim, available_sims())
     from benchmark.train import reward_weights
 
     overrides = {}

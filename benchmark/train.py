@@ -3,7 +3,8 @@
     bench train --robot a1 --steps 1000000 --seed 0
 
 Eight environments in one process (DummyVecEnv: on 2 cores it beats subprocesses), by default half on
-flat ground and half on rough terrain of different seeds (`--rough-share`), all domain-randomized. Every
+flat ground and half on rough terrain of different seeds (`--rough-share`), all domain-randomized;
+`--sim mujoco pybullet` spreads them over engines (pairs of environments per engine). Every
 `--eval-every` steps the deterministic actor walks one 10 s trial through the benchmark's
 own runner; the row goes to `train_log.csv` and the actor to `policy.npz` in `--out`.
 With `--ship`, the final actor is also written to `robots/<robot>/policy.npz`.
@@ -72,7 +73,7 @@ def load_actor_into(model, actor: MlpActor) -> None:
             layer.bias.copy_(torch.as_tensor(b))
 
 
-def train(robot: str, sim: str, steps: int, seed: int, out: Path, eval_every: int, ship: bool,
+def train(robot: str, sims: list[str], steps: int, seed: int, out: Path, eval_every: int, ship: bool,
           rewards: RewardWeights = RewardWeights(), init_from: Path | None = None,
           rough_share: float = 0.5, eval_terrain: str = "flat") -> Path:
     import torch
@@ -90,6 +91,7 @@ def train(robot: str, sim: str, steps: int, seed: int, out: Path, eval_every: in
     def make(i: int):
         # spread the rough environments evenly; at 0.5 they alternate flat, rough, flat, ...
         terrain = "rough" if int((i + 1) * rough_share) > int(i * rough_share) else "flat"
+        sim = sims[(i // 2) % len(sims)]  # engines in pairs of environments, so each sees both terrains
         return lambda: LocomotionEnv(robot, sim, terrain, terrain_seed=i, rewards=rewards)
 
     vec = VecMonitor(DummyVecEnv([make(i) for i in range(NUM_ENVS)]))
@@ -107,7 +109,7 @@ def train(robot: str, sim: str, steps: int, seed: int, out: Path, eval_every: in
         import mujoco
         import stable_baselines3
 
-        return {"robot": robot, "trained_in": sim, "env_steps": done, "seed": seed,
+        return {"robot": robot, "trained_in": "+".join(sims), "env_steps": done, "seed": seed,
                 "wall_s": round(time.perf_counter() - started, 1), "command": command,
                 "versions": {"python": platform.python_version(), "torch": torch.__version__,
                              "stable_baselines3": stable_baselines3.__version__, "gymnasium": gymnasium.__version__,
@@ -121,7 +123,7 @@ def train(robot: str, sim: str, steps: int, seed: int, out: Path, eval_every: in
 
     class Progress(BaseCallback):
         def _on_training_start(self) -> None:
-            self.bar = tqdm(total=steps, unit="step", desc=f"PPO {robot}/{sim}", file=sys.stderr, disable=None)
+            self.bar = tqdm(total=steps, unit="step", desc=f"PPO {robot}/{'+'.join(sims)}", file=sys.stderr, disable=None)
             self.next_eval = eval_every
             with log_path.open("w", newline="") as f:
                 csv.writer(f).writerow(fields)
@@ -136,7 +138,7 @@ def train(robot: str, sim: str, steps: int, seed: int, out: Path, eval_every: in
         def _evaluate(self) -> None:
             actor = export_actor(self.model, meta(self.num_timesteps))
             actor.save(out / "policy.npz")
-            trial = evaluate_cell(Cell(sim, robot, eval_terrain), trials=1, duration=10.0,
+            trial = evaluate_cell(Cell(sims[0], robot, eval_terrain), trials=1, duration=10.0,
                                   policy=RLPolicy(load_robot(robot), actor=actor))[0]
             episodes = list(self.model.ep_info_buffer)
             row = [self.num_timesteps, round(time.perf_counter() - started, 1),

@@ -86,7 +86,7 @@ def test_feet_air_time_rewards_long_steps():
 def test_smoke_training_writes_a_loadable_policy_and_log(tmp_path):
     from benchmark.train import train
 
-    path = train("a1", "mujoco", steps=4096, seed=0, out=tmp_path, eval_every=2048, ship=False)
+    path = train("a1", ["mujoco"], steps=4096, seed=0, out=tmp_path, eval_every=2048, ship=False)
     actor = MlpActor.load(path)
     assert actor.meta["env_steps"] >= 4096 and actor.meta["trained_in"] == "mujoco"
     action = actor(np.zeros(48))
@@ -98,7 +98,7 @@ def test_smoke_training_writes_a_loadable_policy_and_log(tmp_path):
 def test_training_is_deterministic_for_a_seed(tmp_path):
     from benchmark.train import train
 
-    a = MlpActor.load(train("a1", "mujoco", 2048, 7, tmp_path / "a", 10**9, False))
-    b = MlpActor.load(train("a1", "mujoco", 2048, 7, tmp_path / "b", 10**9, False))
+    a = MlpActor.load(train("a1", ["mujoco"], 2048, 7, tmp_path / "a", 10**9, False))
+    b = MlpActor.load(train("a1", ["mujoco"], 2048, 7, tmp_path / "b", 10**9, False))
     for wa, wb in zip(a.weights, b.weights):
         np.testing.assert_array_equal(wa, wb)

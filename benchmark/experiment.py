@@ -157,9 +157,9 @@ class Experiment:
             params = cell.params()
             # a setting the policy ignores reads None (the seed policy has no encoding)
             labels = {axis: variants[axis] if axis in variants else params[axis] for axis in self.grid}
+            index = cells.setdefault(cell, len(cells))  # counted over the whole grid, so slices agree
             if only and any(str({**params, **labels}.get(k)) != v for k, v in only.items()):
                 continue
-            index = cells.setdefault(cell, len(cells))
             for seed in self.seeds:
                 trial = Trial(self.name, cell, seed, labels=labels, cell_index=index)
                 if trial.id not in seen:

@@ -57,6 +57,9 @@ def test_shipped_experiments_expand_into_the_papers_grids():
     # Ids are stable (a resumed sweep finds its trials) and unique.
     assert [t.id for t in rl] == [t.id for t in cross.trials(only={"controller": "rl"})]
     assert len({t.id for t in cross.trials()}) == len(cross.trials())
+    # A slice keeps each cell's place in the whole grid, so tables of slices run apart line up.
+    place = {t.id: t.cell_index for t in cross.trials()}
+    assert all(place[t.id] == t.cell_index for t in rl) and rl[-1].cell_index > len(rl) // 5
 
 
 @pytest.mark.parametrize("text, message", [

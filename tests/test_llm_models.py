@@ -32,30 +32,17 @@ def embedded():
     model.close()
 
 
-class Proxy:
-    """A loopback HTTP server in front of the embedded model's own OpenAI-compatible server:
-    forwards `budget` requests, then answers `status`; remembers the Authorization headers."""
+class LoopbackServer:
+    """An HTTP server on 127.0.0.1 in a thread; subclasses answer POSTs with `answer(path, body, headers)`."""
 
-    def __init__(self, upstream: str, budget: int, status: int = 503, fail_first: int = 0) -> None:
-        self.upstream, self.budget, self.status, self.fail_first = upstream, budget, status, fail_first
-        self.seen, self.auth = 0, []
-        proxy = self
+    def __init__(self) -> None:
+        outer = self
 
         class Handler(BaseHTTPRequestHandler):
             def do_POST(self):  # noqa: N802
                 body = self.rfile.read(int(self.headers["Content-Length"]))
-                proxy.auth.append(self.headers.get("Authorization"))
-                proxy.seen += 1
-                if proxy.seen <= proxy.fail_first or proxy.seen > proxy.budget + proxy.fail_first:
-                    self.send_response(proxy.status)
-                    self.end_headers()
-                    self.wfile.write(b'{"error": "unavailable"}')
-                    return
-                request = urllib.request.Request(proxy.upstream + self.path.removeprefix("/v1"), data=body,
-                                                 headers={"Content-Type": "application/json"}, method="POST")
-                with urllib.request.urlopen(request, timeout=300) as response:
-                    payload = response.read()
-                self.send_response(200)
+                status, payload = outer.answer(self.path, body, self.headers)
+                self.send_response(status)
                 self.send_header("Content-Type", "application/json")
                 self.end_headers()
                 self.wfile.write(payload)
@@ -67,8 +54,31 @@ class Proxy:
         self.url = f"http://127.0.0.1:{self.server.server_address[1]}/v1"
         threading.Thread(target=self.server.serve_forever, daemon=True).start()
 
+    def answer(self, path: str, body: bytes, headers) -> tuple[int, bytes]:
+        raise NotImplementedError
+
     def close(self) -> None:
         self.server.shutdown()
+
+
+class Proxy(LoopbackServer):
+    """In front of the embedded model's own OpenAI-compatible server: forwards `budget` requests,
+    then answers `status`; remembers the Authorization headers."""
+
+    def __init__(self, upstream: str, budget: int, status: int = 503, fail_first: int = 0) -> None:
+        self.upstream, self.budget, self.status, self.fail_first = upstream, budget, status, fail_first
+        self.seen, self.auth = 0, []
+        super().__init__()
+
+    def answer(self, path: str, body: bytes, headers) -> tuple[int, bytes]:
+        self.auth.append(headers.get("Authorization"))
+        self.seen += 1
+        if self.seen <= self.fail_first or self.seen > self.budget + self.fail_first:
+            return self.status, b'{"error": "unavailable"}'
+        request = urllib.request.Request(self.upstream + path.removeprefix("/v1"), data=body,
+                                         headers={"Content-Type": "application/json"}, method="POST")
+        with urllib.request.urlopen(request, timeout=300) as response:
+            return 200, response.read()
 
 
 def test_embedded_model_answers_twelve_numbers_under_the_grammar(embedded):
@@ -122,34 +132,17 @@ def test_server_errors_and_a_dead_server_are_one_clear_line():
             PROMPT, Sampling(), GRAMMAR)
 
 
-class CannedServer:
-    """A loopback OpenAI-compatible server that answers every completion at once with the same
-    twelve numbers; remembers when each request arrived."""
+class CannedServer(LoopbackServer):
+    """Answers every completion at once with the same twelve numbers; remembers arrival times."""
 
     def __init__(self) -> None:
         self.arrivals: list[float] = []
-        server = self
+        super().__init__()
 
-        class Handler(BaseHTTPRequestHandler):
-            def do_POST(self):  # noqa: N802
-                self.rfile.read(int(self.headers["Content-Length"]))
-                server.arrivals.append(time.monotonic())
-                body = json.dumps({"choices": [{"text": " [" + ", ".join(["100"] * 12) + "]"}],
-                                   "usage": {"prompt_tokens": 40, "completion_tokens": 36}}).encode()
-                self.send_response(200)
-                self.send_header("Content-Type", "application/json")
-                self.end_headers()
-                self.wfile.write(body)
-
-            def log_message(self, *args):
-                pass
-
-        self.server = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
-        self.url = f"http://127.0.0.1:{self.server.server_address[1]}/v1"
-        threading.Thread(target=self.server.serve_forever, daemon=True).start()
-
-    def close(self) -> None:
-        self.server.shutdown()
+    def answer(self, path: str, body: bytes, headers) -> tuple[int, bytes]:
+        self.arrivals.append(time.monotonic())
+        return 200, json.dumps({"choices": [{"text": " [" + ", ".join(["100"] * 12) + "]"}],
+                                "usage": {"prompt_tokens": 40, "completion_tokens": 36}}).encode()
 
 
 def test_rate_limit_spaces_requests_to_a_remote_server():

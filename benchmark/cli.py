@@ -45,6 +45,17 @@ def _doc(module: str) -> str:
     return importlib.import_module(module).__doc__ or ""
 
 
+def _key_values(items: list[str], option: str, form: str) -> dict[str, str]:
+    """`KEY=VALUE` words of an option as a dict; anything else is a one-line error."""
+    out = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise CliError(f"{option} expects {form}, got '{item}'")
+        out[key] = value
+    return out
+
+
 def _positive(kind: type) -> callable:
     def parse(text: str):
         try:
@@ -336,23 +347,17 @@ def cmd_sweep(args: argparse.Namespace) -> int:
             print(f"{name:<14} {len(exp.trials()):>4} trials  {exp.title}")
         return 0
     experiment = load_experiment(args.experiment)
-    only = {}
-    for item in args.only:
-        key, sep, value = item.partition("=")
-        if not sep:
-            raise CliError(f"--only expects KEY=VALUE, got '{item}'")
-        only[key] = value
     overrides = parse_overrides(args.overrides)
-    trials = experiment.trials(overrides, only)
+    trials = experiment.trials(overrides, _key_values(args.only, "--only", "KEY=VALUE"))
     if args.executor == "ray" and importlib.util.find_spec("ray") is None:
         raise CliError("--executor ray needs Ray: pip install -e '.[ray]'")
     if not trials:
         raise CliError(f"no cell of '{experiment.name}' matches --only {' '.join(args.only)}")
-    for cell in dict.fromkeys(t.cell for t in trials):
-        validate(cell)
     store = ResultStore(Path(args.results or f"results/{experiment.name}"))
     done = store.done_ids()
-    if args.dry_run:
+    if args.dry_run:  # a real run validates its cells in run_sweep
+        for cell in dict.fromkeys(t.cell for t in trials):
+            validate(cell)
         cells: dict[str, list] = {}
         for t in trials:
             cells.setdefault(t.cell_id, []).append(t)
@@ -453,21 +458,18 @@ def _print_run_table(result: dict) -> None:
 def cmd_train(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from benchmark.train import train
+    from benchmark.train import reward_weights, train
 
     load_robot(args.robot)
     for sim in args.sim:
         if sim not in available_sims():
             raise UnknownNameError("simulator", sim, available_sims())
-    from benchmark.train import reward_weights
-
     overrides = {}
-    for item in args.reward:
-        term, _, value = item.partition("=")
+    for term, value in _key_values(args.reward, "--reward", "TERM=NUMBER").items():
         try:
             overrides[term] = float(value)
         except ValueError:
-            raise CliError(f"--reward expects TERM=NUMBER, got '{item}'") from None
+            raise CliError(f"--reward expects TERM=NUMBER, got '{term}={value}'") from None
     rewards = reward_weights(overrides)
     if not 0.0 <= args.rough_share <= 1.0:
         raise CliError(f"--rough-share must be between 0 and 1, got {args.rough_share}")

@@ -114,6 +114,16 @@ def world_to_base(quat_wxyz: np.ndarray) -> np.ndarray:
     ])
 
 
+def world_to_base_batch(quats_wxyz: np.ndarray) -> np.ndarray:
+    """`world_to_base` for N quaternions at once: (N, 4) -> (N, 3, 3)."""
+    w, x, y, z = np.moveaxis(np.asarray(quats_wxyz, dtype=np.float64), -1, 0)
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)], axis=-1),
+        np.stack([2 * (x * y - w * z), 1 - 2 * (x * x + z * z), 2 * (y * z + w * x)], axis=-1),
+        np.stack([2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)], axis=-1),
+    ], axis=-2)
+
+
 def initial_joint_pos(robot: Robot, seed: int, spread: float = 0.05) -> np.ndarray:
     """The default pose with a seeded uniform perturbation (rad), so trials differ."""
     rng = np.random.default_rng(seed)

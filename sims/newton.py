@@ -20,7 +20,8 @@ from collections.abc import Sequence
 import numpy as np
 
 from robots import Robot, UnknownNameError
-from sims.base import BodyPoses, Dynamics, PhysicsConfig, RobotState, initial_joint_pos, pd_torque, world_to_base
+from sims.base import (BodyPoses, Dynamics, PhysicsConfig, RobotState, initial_joint_pos, pd_torque,
+                        world_to_base_batch)
 from sims.mujoco import IMPRATIO
 from sims.terrain import Terrain
 
@@ -111,8 +112,13 @@ class NewtonWorlds:
         self._nominal_base_mass = float(self.model.body_mass.numpy()[0])
         self._targets = np.tile(robot.default_pose, (worlds, 1))
         self.time = 0.0
+        self._wp, self._graph, self._use_graph = wp, None, False
         self.reset(range(worlds))
         self.step(self._targets)  # the first step compiles the solver's kernels
+        # On CUDA a control period is captured once as a CUDA graph and replayed: one launch
+        # instead of thousands of kernel launches from Python (needs warp's memory pool).
+        device = wp.get_device(self.device)
+        self._use_graph = device.is_cuda and wp.is_mempool_enabled(device)
         print(f"newton: ready in {time.perf_counter() - started:.1f} s", file=sys.stderr)
 
     def _add_terrain(self, scene, newton, wp) -> None:
@@ -154,10 +160,30 @@ class NewtonWorlds:
         """Advance every world one control period; `targets` is (worlds, 12), canonical order."""
         self._targets = np.asarray(targets, dtype=np.float64).reshape(self.worlds, -1)
         self._write_targets(self._targets)
+        self._control_period()
+        self.time += self.physics.control_dt
+
+    def _control_period(self) -> None:
+        """`substeps` solver steps, replayed from a CUDA graph where one can be used."""
+        wp = self._wp
+        if self._graph is not None:
+            wp.capture_launch(self._graph)
+        elif self._use_graph:
+            with wp.ScopedCapture(device=self.device, force_module_load=False) as capture:
+                self._solver_steps()
+            self._graph = capture.graph
+            wp.capture_launch(self._graph)
+        else:
+            self._solver_steps()
+
+    def _solver_steps(self) -> None:
+        first = self._state
         for _ in range(self.physics.substeps):
             self.solver.step(self._state, self._next, self.control, None, self.physics.dt)
             self._state, self._next = self._next, self._state
-        self.time += self.physics.control_dt
+        if self._state is not first:  # odd substeps: end in the buffer we began in, so a replay can follow
+            first.assign(self._state)
+            self._state, self._next = first, self._state
 
     def set_dynamics(self, dynamics: Dynamics) -> None:
         """Friction, base mass and motor strength for every world (domain randomization)."""
@@ -183,6 +209,7 @@ class NewtonWorlds:
         flags = newton.ModelFlags
         self.solver.notify_model_changed(flags.SHAPE_PROPERTIES | flags.BODY_INERTIAL_PROPERTIES
                                          | flags.JOINT_DOF_PROPERTIES)
+        self._graph = None  # recapture against whatever the solver re-uploaded
 
     def push_base(self, velocity_xy: np.ndarray) -> None:
         """Add a horizontal velocity to every world's base."""
@@ -193,9 +220,8 @@ class NewtonWorlds:
     def raw_loop(self, targets: np.ndarray, control_steps: int) -> None:
         """The bare solver loop on the same model, as the speed reference for `bench perf`."""
         self._write_targets(np.asarray(targets, dtype=np.float64).reshape(self.worlds, -1))
-        for _ in range(control_steps * self.physics.substeps):
-            self.solver.step(self._state, self._next, self.control, None, self.physics.dt)
-            self._state, self._next = self._next, self._state
+        for _ in range(control_steps):
+            self._control_period()
 
     def states(self) -> list[RobotState]:
         """The RobotState of every world."""
@@ -204,19 +230,19 @@ class NewtonWorlds:
         q = self._state.joint_q.numpy().reshape(self.worlds, self._coords)[:, self._q_idx].astype(np.float64)
         qd = self._state.joint_qd.numpy().reshape(self.worlds, self._dofs)[:, self._qd_idx].astype(np.float64)
         feet, falls = self._contacts()
-        out = []
-        for w in range(self.worlds):
-            pos, quat_xyzw = body_q[w, :3], body_q[w, 3:]
-            quat = np.array([quat_xyzw[3], *quat_xyzw[:3]])
-            to_base = world_to_base(quat)
-            omega = body_qd[w, 3:]
-            v_origin = body_qd[w, :3] - np.cross(omega, to_base.T @ self._com)  # COM velocity -> origin
-            torque = pd_torque(self.robot, self._targets[w], q[w], qd[w], self._strength[w])
-            out.append(RobotState(
-                time=self.time, base_pos=pos, base_quat=quat, base_lin_vel=to_base @ v_origin,
-                base_ang_vel=to_base @ omega, projected_gravity=-to_base[:, 2], joint_pos=q[w], joint_vel=qd[w],
-                joint_torque=torque, foot_contact=feet[w], fall_contact=bool(falls[w])))
-        return out
+        quat = body_q[:, [6, 3, 4, 5]]  # x, y, z, w -> w, x, y, z
+        to_base = world_to_base_batch(quat)
+        omega = body_qd[:, 3:]
+        com_world = np.einsum("nji,j->ni", to_base, self._com)  # R @ com, with R = to_base^T
+        v_origin = body_qd[:, :3] - np.cross(omega, com_world)  # COM velocity -> origin
+        lin_vel = np.einsum("nij,nj->ni", to_base, v_origin)
+        ang_vel = np.einsum("nij,nj->ni", to_base, omega)
+        torque = pd_torque(self.robot, self._targets, q, qd, self._strength[:, None])
+        return [RobotState(time=self.time, base_pos=body_q[w, :3], base_quat=quat[w], base_lin_vel=lin_vel[w],
+                           base_ang_vel=ang_vel[w], projected_gravity=-to_base[w, :, 2], joint_pos=q[w],
+                           joint_vel=qd[w], joint_torque=torque[w], foot_contact=feet[w],
+                           fall_contact=bool(falls[w]))
+                for w in range(self.worlds)]
 
     def _contacts(self) -> tuple[np.ndarray, np.ndarray]:
         feet = np.zeros((self.worlds, len(self.robot.foot_links)), dtype=bool)
@@ -230,19 +256,17 @@ class NewtonWorlds:
         touching = data.contact.dist.numpy()[:count] <= 0.0  # the list also holds pairs within the margin
         geoms = data.contact.geom.numpy()[:count][touching]
         worlds = data.contact.worldid.numpy()[:count][touching]
-        geom_shape = self._geom_shape.numpy()
-        for world, (g1, g2) in zip(worlds, geoms):
-            s1, s2 = geom_shape[world, g1], geom_shape[world, g2]
-            if s1 < 0 or s2 < 0:
-                continue
-            robot_shape = s2 if self._shape_world[s1] < 0 else s1 if self._shape_world[s2] < 0 else -1
-            if robot_shape < 0:  # robot against robot: not a contact with the terrain
-                continue
-            leg = self._shape_foot[robot_shape]
-            if leg >= 0:
-                feet[self._shape_world[robot_shape], leg] = True
-            if self._shape_falls[robot_shape]:
-                falls[self._shape_world[robot_shape]] = True
+        geom_shape = self._geom_shape.numpy()  # (worlds, geoms) -> shape index, -1 for none
+        s1, s2 = geom_shape[worlds, geoms[:, 0]], geom_shape[worlds, geoms[:, 1]]
+        both = (s1 >= 0) & (s2 >= 0)
+        s1, s2 = s1[both], s2[both]
+        # the robot's shape in a robot-terrain pair (terrain shapes belong to no world);
+        # robot-against-robot pairs are not contacts with the terrain
+        robot_shape = np.where(self._shape_world[s1] < 0, s2, np.where(self._shape_world[s2] < 0, s1, -1))
+        robot_shape = robot_shape[robot_shape >= 0]
+        leg, world = self._shape_foot[robot_shape], self._shape_world[robot_shape]
+        feet[world[leg >= 0], leg[leg >= 0]] = True
+        falls[world[self._shape_falls[robot_shape]]] = True
         return feet, falls
 
     def body_poses(self, world: int = 0) -> BodyPoses:

@@ -11,6 +11,7 @@ import pytest
 
 from robots import load_robot
 from sims import make_sim, make_worlds
+from sims.base import PhysicsConfig
 from sims.terrain import Terrain
 
 
@@ -59,3 +60,24 @@ def test_perf_reports_one_and_many_worlds():
     result = json.loads(out.stdout)
     assert [row["worlds"] for row in result["by_worlds"]] == [1, 4]
     assert all(row["raw_steps_per_s"] > 0 and row["framework_steps_per_s"] > 0 for row in result["by_worlds"])
+
+
+def test_an_odd_number_of_substeps_ends_in_the_state_it_began_in():
+    """A control period swaps two state buffers per substep; with an odd count the result is
+    copied back, so that a captured CUDA graph can be replayed. The physics must not notice."""
+    robot = load_robot("a1")
+    odd = make_worlds("newton", robot, Terrain("flat"), worlds=2, physics=PhysicsConfig(substeps=3))
+    single = make_worlds("newton", robot, Terrain("flat"), worlds=2, physics=PhysicsConfig(substeps=1))
+    targets = np.tile(robot.default_pose, (2, 1))
+    targets[:, 1] += 0.3
+    for worlds in (odd, single):
+        worlds.reset([4, 5])
+    buffer = odd._state
+    for _ in range(4):
+        odd.step(targets)
+        for _ in range(3):
+            single.step(targets)
+    assert odd._state is buffer
+    for a, b in zip(odd.states(), single.states()):
+        np.testing.assert_allclose(a.joint_pos, b.joint_pos, atol=1e-6)
+        np.testing.assert_allclose(a.base_pos, b.base_pos, atol=1e-6)

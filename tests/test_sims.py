@@ -11,7 +11,7 @@ from benchmark.policies import StandPolicy
 from benchmark.runner import EpisodeConfig, run_trial
 from robots import LEGS, available_robots, load_robot
 from sims import available_sims, make_sim
-from sims.base import PhysicsConfig, world_to_base
+from sims.base import PhysicsConfig, world_to_base, world_to_base_batch
 from sims.terrain import Terrain
 
 from conftest import CELLS
@@ -137,3 +137,12 @@ def test_an_exploding_simulation_is_a_failed_trial_with_a_reason(sim_name):
         sim.close()
     assert not result.success and result.fall_time is not None and result.fall_time < 3.0
     assert result.fall_reason
+
+
+def test_batched_rotation_matches_the_one_quaternion_version():
+    quats = np.random.default_rng(3).standard_normal((7, 4))
+    quats /= np.linalg.norm(quats, axis=1, keepdims=True)
+    batch = world_to_base_batch(quats)
+    for quat, matrix in zip(quats, batch):
+        np.testing.assert_allclose(matrix, world_to_base(quat), atol=1e-12)
+    np.testing.assert_allclose(batch @ batch.transpose(0, 2, 1), np.broadcast_to(np.eye(3), (7, 3, 3)), atol=1e-12)

@@ -8,6 +8,7 @@ and in evaluation.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -18,14 +19,21 @@ from sims.base import RobotState, Simulator
 from sims.terrain import Terrain
 
 
-# Heading hold and line following. Bumps on rough ground knock the heading off by up to
-# 0.5 rad; at legged_gym's gain of 0.5 the robot walked on askew for seconds. These gains
-# halved the sideways drift of both shipped policies in MuJoCo (60 seeds per cell: ANYmal
-# on rough ground 0.77 -> 0.37 m, A1 0.96 -> 0.38 m) and did not lower success on rough ground.
-HEADING_GAIN = 1.5  # yaw-rate command (rad/s) per radian of heading error
-MAX_YAW_RATE = 1.0  # rad/s
-LINE_GAIN = 1.0  # rad of heading toward the line per metre of sideways offset
-MAX_LINE_HEADING = 0.4  # rad
+@dataclass(frozen=True)
+class HeadingHold:
+    """Heading hold and line following through the command's yaw rate.
+
+    Bumps on rough ground knock the heading off by up to 0.5 rad; at legged_gym's gain of 0.5
+    the robot walked on askew for seconds. These gains halved the sideways drift of both
+    shipped policies in MuJoCo (60 seeds per cell: ANYmal on rough ground 0.77 -> 0.37 m, A1
+    0.96 -> 0.38 m) and did not lower success on rough ground.
+    """
+
+    gain: float = 1.5  # yaw-rate command (rad/s) per radian of heading error; 0 turns the hold off
+    max_yaw_rate: float = 1.0  # rad/s
+    follow_line: bool = True  # aim the heading back at the starting line (off in training: random headings)
+    line_gain: float = 1.0  # rad of heading toward the line per metre of sideways offset
+    max_line_heading: float = 0.4  # rad
 
 
 def yaw_of(quat_wxyz: np.ndarray) -> float:
@@ -38,18 +46,18 @@ class ControlLoop:
 
     Heading hold: the observation's yaw-rate command steers the robot back to
     `target_heading` (the observation carries no heading, so without it a policy's small
-    turning bias accumulates into metres of sideways drift). With `follow_line`, the target
+    turning bias accumulates into metres of sideways drift). With `heading.follow_line`, the target
     heading points back to the straight line the robot started on (x axis through the start),
     so a sideways bias is steered out too. Training uses random fixed headings instead. The
     LLM never sees commands.
     """
 
     def __init__(self, sim: Simulator, robot: Robot, terrain: Terrain, command: np.ndarray | None = None,
-                 heading_gain: float = HEADING_GAIN, follow_line: bool = True) -> None:
+                 heading: HeadingHold = HeadingHold()) -> None:
         self.sim, self.robot, self.terrain = sim, robot, terrain
         self.base_command = robot.command if command is None else np.asarray(command, dtype=float)
         self.command = self.base_command.copy()
-        self.heading_gain, self.follow_line = heading_gain, follow_line
+        self.heading = heading
         self.target_heading = 0.0
         self.line_y = 0.0
         self.dt = sim.physics.control_dt
@@ -71,12 +79,13 @@ class ControlLoop:
         return (error + math.pi) % (2 * math.pi) - math.pi
 
     def _update_command(self) -> None:
-        if self.follow_line:
+        h = self.heading
+        if h.follow_line:
             offset = float(self.state.base_pos[1]) - self.line_y
-            self.target_heading = float(np.clip(-LINE_GAIN * offset, -MAX_LINE_HEADING, MAX_LINE_HEADING))
-        if self.heading_gain:
+            self.target_heading = float(np.clip(-h.line_gain * offset, -h.max_line_heading, h.max_line_heading))
+        if h.gain:
             self.command = self.base_command.copy()
-            self.command[2] = float(np.clip(self.heading_gain * self.heading_error, -MAX_YAW_RATE, MAX_YAW_RATE))
+            self.command[2] = float(np.clip(h.gain * self.heading_error, -h.max_yaw_rate, h.max_yaw_rate))
 
     def reset(self, seed: int, target_heading: float = 0.0) -> np.ndarray:
         self.steps = 0

@@ -18,11 +18,11 @@ from dataclasses import dataclass
 import gymnasium as gym
 import numpy as np
 
-from benchmark.control import ControlLoop
+from benchmark.control import ControlLoop, HeadingHold
 from benchmark.observation import RL_OBS_DIM
 from benchmark.rewards import FeetAirTime, RewardWeights, walking_reward
 from robots import available_robots, load_robot
-from sims import TITLES, make_sim
+from sims import ENGINES, make_sim
 from sims.base import Dynamics
 from sims.terrain import TERRAINS, Terrain
 
@@ -62,7 +62,7 @@ class LocomotionEnv(gym.Env):
         self.robot = load_robot(robot)
         self.terrain = Terrain(terrain, seed=terrain_seed)
         self.sim = make_sim(sim, self.robot, self.terrain)
-        self.loop = ControlLoop(self.sim, self.robot, self.terrain, follow_line=randomization is None)
+        self.loop = ControlLoop(self.sim, self.robot, self.terrain, heading=HeadingHold(follow_line=randomization is None))
         self.randomization, self.rewards = randomization, rewards
         self.max_steps = int(round(episode_s / self.loop.dt))
         self.action_space = gym.spaces.Box(-ACTION_LIMIT, ACTION_LIMIT, (self.robot.num_joints,), np.float32)
@@ -109,14 +109,14 @@ class LocomotionEnv(gym.Env):
 
 
 def env_id(robot: str, terrain: str, sim: str) -> str:
-    return f"promptwalk/{robot.capitalize()}-{terrain.capitalize()}-{TITLES[sim]}-v0"
+    return f"promptwalk/{robot.capitalize()}-{terrain.capitalize()}-{ENGINES[sim].title}-v0"
 
 
 def register_all() -> list[str]:
     ids = []
     for robot in available_robots():
         for terrain in TERRAINS:
-            for sim in TITLES:
+            for sim in ENGINES:
                 ids.append(env_id(robot, terrain, sim))
                 if ids[-1] not in gym.registry:
                     gym.register(ids[-1], entry_point=LocomotionEnv,

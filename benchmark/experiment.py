@@ -14,9 +14,9 @@
     [variants.description]       # optional: named bundles of settings, one axis of the grid
     D1 = { prompt_parts = ["task"] }
 
-A cell is one `CellSpec` (engine, robot, terrain, policy and the LLM settings); a trial is a
-cell and a seed. Settings that only the LLM policy reads are blanked for the other policies,
-so a grid over encodings does not run the seed policy five times.
+A cell is one `CellSpec` (engine, robot, terrain, policy and its settings); a trial is a
+cell and a seed. Settings that only another policy reads are dropped from a cell, so a grid
+over encodings does not run the seed policy five times.
 """
 
 from __future__ import annotations
@@ -25,85 +25,17 @@ import hashlib
 import itertools
 import json
 import tomllib
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
-from benchmark.llm.encodings import DEFAULT_ENCODING
-from benchmark.llm.observations import DEFAULT_OBSERVATION
-from benchmark.llm.prompt import PARTS
+from benchmark.cell import CellSpec, make_cell, setting_fields
+from benchmark.settings import SettingError
 
 EXPERIMENTS_DIR = Path(__file__).parent / "experiments"
-LLM_ONLY = ("model", "url", "api", "history", "history_mode", "prompt_parts", "encoding", "observation",
-            "constrained", "temperature", "llm_after", "seed_start")
 
 
-class ExperimentError(ValueError):
+class ExperimentError(SettingError):
     """A malformed experiment file or override: one line for the user."""
-
-
-@dataclass(frozen=True)
-class CellSpec:
-    """Everything one trial depends on except its seed."""
-
-    sim: str = "mujoco"
-    robot: str = "a1"
-    terrain: str = "flat"
-    terrain_seed: int = 0
-    policy: str = "rl"
-    duration: float = 10.0  # s; an LLM cell's metrics cover [llm_after, duration]
-    device: str | None = None  # newton only
-    solver: str | None = None  # newton only
-    model: str | None = "embedded"
-    url: str | None = None
-    api: str | None = "completions"
-    history: int | None = 50
-    history_mode: str | None = "sliding"
-    prompt_parts: tuple[str, ...] | None = PARTS
-    encoding: str | None = DEFAULT_ENCODING
-    observation: str | None = DEFAULT_OBSERVATION
-    constrained: bool | None = True
-    temperature: float | None = 0.0
-    llm_after: float | None = 10.0
-    seed_start: float | None = 1.0
-
-    @property
-    def uses_llm(self) -> bool:
-        return self.policy == "llm"
-
-    def canonical(self) -> CellSpec:
-        """The same cell with the settings its policy ignores blanked (None)."""
-        if self.uses_llm:
-            return self
-        return replace(self, **{name: None for name in LLM_ONLY})
-
-    def params(self) -> dict:
-        """Flat, parquet-friendly parameters (prompt parts joined with '+')."""
-        out = asdict(self)
-        if out["prompt_parts"] is not None:
-            out["prompt_parts"] = "+".join(out["prompt_parts"])
-        return out
-
-    @property
-    def eval_start(self) -> float:
-        return float(self.llm_after) if self.uses_llm else 0.0
-
-    def llm_config(self, threads: int | None = None, requests_per_minute: float | None = None,
-                   price_in: float | None = None, price_out: float | None = None, cache: bool = True):
-        """The LLM policy's configuration for this cell (validates prompt parts, encoding, observation)."""
-        from benchmark.llm.models import Sampling
-        from benchmark.llm.policy import LLMConfig
-        from benchmark.llm.prompt import PromptConfig
-
-        prompt = PromptConfig(parts=tuple(self.prompt_parts), history=self.history, encoding=self.encoding,
-                              observation=self.observation)
-        return LLMConfig(model=self.model, url=self.url, api=self.api, prompt=prompt, seed_start=self.seed_start,
-                         llm_after=self.llm_after, history_mode=self.history_mode, constrained=self.constrained,
-                         sampling=Sampling(temperature=self.temperature), threads=threads,
-                         requests_per_minute=requests_per_minute, price_in=price_in, price_out=price_out,
-                         cache=cache)
-
-    def label(self) -> str:
-        return f"{self.sim}/{self.robot}/{self.terrain}/{self.policy}"
 
 
 @dataclass(frozen=True)
@@ -144,6 +76,10 @@ class Experiment:
         """Every (cell, seed), deduplicated, in grid order; `overrides` win over the file's settings,
         `only` keeps the cells whose parameters match (values compared as text)."""
         out, seen, cells = [], set(), {}
+        valid = list(dict.fromkeys([*setting_fields(), *self.grid]))
+        for key in only or {}:
+            if key not in valid:
+                raise ExperimentError(f"--only: unknown setting '{key}'; valid: {', '.join(valid)}")
         for combo in itertools.product(*self.grid.values()):
             settings, variants = dict(self.fixed), {}
             for axis, value in zip(self.grid, combo):
@@ -153,10 +89,10 @@ class Experiment:
                 else:
                     settings[axis] = value
             settings.update(overrides or {})
-            cell = make_cell(settings, where=self.name).canonical()
+            cell = make_cell(settings, where=self.name, strict=False)
             params = cell.params()
             # a setting the policy ignores reads None (the seed policy has no encoding)
-            labels = {axis: variants[axis] if axis in variants else params[axis] for axis in self.grid}
+            labels = {axis: variants[axis] if axis in variants else params.get(axis) for axis in self.grid}
             index = cells.setdefault(cell, len(cells))  # counted over the whole grid, so slices agree
             if only and any(str({**params, **labels}.get(k)) != v for k, v in only.items()):
                 continue
@@ -166,20 +102,6 @@ class Experiment:
                     seen.add(trial.id)
                     out.append(trial)
         return out
-
-
-def make_cell(settings: dict, where: str = "settings") -> CellSpec:
-    valid = {f.name: f for f in fields(CellSpec)}
-    unknown = [k for k in settings if k not in valid]
-    if unknown:
-        raise ExperimentError(f"{where}: unknown setting '{unknown[0]}'; valid: {', '.join(valid)}")
-    values = dict(settings)
-    if isinstance(values.get("prompt_parts"), list):
-        values["prompt_parts"] = tuple(values["prompt_parts"])
-    for name in ("duration", "temperature", "llm_after", "seed_start"):
-        if isinstance(values.get(name), int) and not isinstance(values.get(name), bool):
-            values[name] = float(values[name])
-    return CellSpec(**values)
 
 
 def parse_overrides(items: list[str]) -> dict:
@@ -193,7 +115,10 @@ def parse_overrides(items: list[str]) -> dict:
             out[key] = tomllib.loads(f"v = {text}")["v"]
         except tomllib.TOMLDecodeError:
             out[key] = text
-    make_cell(out, where="--set")
+    known = setting_fields()
+    for key in out:
+        if key not in known:
+            raise ExperimentError(f"--set: unknown setting '{key}'; valid: {', '.join(known)}")
     return out
 
 
@@ -239,6 +164,6 @@ def load_experiment(name_or_path: str) -> Experiment:
         experiment.trials()  # every cell must build: unknown settings fail here, before any trial runs
     except ExperimentError:
         raise
-    except (TypeError, ValueError) as err:
+    except ValueError as err:
         raise ExperimentError(f"{path}: {err}") from None
     return experiment

@@ -14,9 +14,6 @@ from sims.base import RobotState
 
 RL_OBS_DIM = 48
 LLM_OBS_DIM = 33
-RL_OBS_LAYOUT = (("lin_vel", 3), ("ang_vel", 3), ("gravity", 3), ("command", 3),
-                 ("joint_pos", 12), ("joint_vel", 12), ("last_action", 12))
-LLM_OBS_LAYOUT = (("lin_vel", 3), ("ang_vel", 3), ("gravity", 3), ("joint_pos", 12), ("joint_vel", 12))
 
 
 def command_scales(robot: Robot) -> np.ndarray:

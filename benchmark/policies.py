@@ -1,23 +1,34 @@
 """Policies map an observation to 12 normalized actions (targets = default + scale * action).
 
-Registered by name; later policies (rl, llm) add themselves to POLICIES.
+Registered like Gymnasium environments, by entry point, and loaded lazily: a new policy is one
+module plus one line in POLICIES. A policy with settings names their dataclass; its fields
+become `bench run` options and experiment keys.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
 from benchmark.mlp import MlpActor
+from benchmark.settings import setting
 from robots import Robot, UnknownNameError
+from sims import load_entry_point
 from sims.base import RobotState
+
+if TYPE_CHECKING:
+    from benchmark.cell import CellSpec, Resources
 
 
 class Policy(Protocol):
     name: str
+
+    @classmethod
+    def from_cell(cls, cell: CellSpec, robot: Robot, resources: Resources) -> Policy:
+        """The policy a cell describes; shared things (models) come from `resources`."""
 
     def reset(self, seed: int) -> None: ...
 
@@ -26,6 +37,45 @@ class Policy(Protocol):
 
     def metrics(self) -> dict:
         """Policy-specific figures for the trial just run (tokens, latency ...); may be empty."""
+
+    def close(self) -> None:
+        """Release what the policy owns (not what `resources` lent it)."""
+
+
+@dataclass(frozen=True)
+class PolicyEntry:
+    name: str
+    entry_point: str  # "module:Class" implementing Policy
+    help: str
+    settings: str | None = None  # "module:Dataclass" of its settings, if any
+    duration: float = 10.0  # s, the default episode of a cell with this policy
+
+    def settings_class(self) -> type | None:
+        return load_entry_point(self.settings) if self.settings else None
+
+
+POLICIES: dict[str, PolicyEntry] = {e.name: e for e in (
+    PolicyEntry("stand", "benchmark.policies:StandPolicy", "holds the default pose; cannot walk"),
+    PolicyEntry("rl", "benchmark.policies:SeedPolicy", "the robot's shipped PPO seed policy (or --policy-file)",
+                settings="benchmark.policies:SeedSettings"),
+    PolicyEntry("llm", "benchmark.llm.controller:LLMPolicy",
+                "the paper's protocol: seed policy fills the prompt history, then the LLM drives",
+                settings="benchmark.llm.controller:LLMSettings", duration=20.0),
+)}
+
+
+def available_policies() -> list[str]:
+    return sorted(POLICIES)
+
+
+def policy_entry(name: str) -> PolicyEntry:
+    if name not in POLICIES:
+        raise UnknownNameError("policy", name, available_policies())
+    return POLICIES[name]
+
+
+def build_policy(cell: CellSpec, robot: Robot, resources: Resources) -> Policy:
+    return load_entry_point(policy_entry(cell.policy).entry_point).from_cell(cell, robot, resources)
 
 
 class StandPolicy:
@@ -36,6 +86,10 @@ class StandPolicy:
     def __init__(self, robot: Robot) -> None:
         self._zeros = np.zeros(robot.num_joints)
 
+    @classmethod
+    def from_cell(cls, cell: CellSpec, robot: Robot, resources: Resources) -> StandPolicy:
+        return cls(robot)
+
     def reset(self, seed: int) -> None:
         pass
 
@@ -45,20 +99,37 @@ class StandPolicy:
     def metrics(self) -> dict:
         return {}
 
+    def close(self) -> None:
+        pass
 
-class RLPolicy:
+
+@dataclass(frozen=True)
+class SeedSettings:
+    policy_file: str | None = setting(None, "a policy.npz written by bench train, instead of the robot's shipped "
+                                            "one (evaluate before you ship)")
+
+
+def seed_policy_path(robot: Robot, settings: SeedSettings | None = None) -> Path:
+    """The actor a seed-policy cell runs: the given file, else the robot's shipped policy.npz."""
+    given = settings.policy_file if settings else None
+    path = Path(given) if given else robot.folder / "policy.npz"
+    if not path.is_file():
+        hint = "" if given else f"; train one with 'bench train --robot {robot.name} --ship'"
+        raise ValueError(f"no seed policy for robot '{robot.name}' at {path}{hint}")
+    return path
+
+
+class SeedPolicy:
     """The shipped seed policy of the robot (`robots/<name>/policy.npz`), or a given actor."""
 
     name = "rl"
 
     def __init__(self, robot: Robot, actor: MlpActor | None = None, path: Path | None = None) -> None:
-        if actor is None:
-            path = path or robot.urdf.parent / "policy.npz"
-            if not path.is_file():
-                raise ValueError(f"no seed policy for robot '{robot.name}' at {path}; train one with "
-                                 f"'bench train --robot {robot.name} --ship'")
-            actor = MlpActor.load(path)
-        self.actor = actor
+        self.actor = actor or MlpActor.load(path or seed_policy_path(robot))
+
+    @classmethod
+    def from_cell(cls, cell: CellSpec, robot: Robot, resources: Resources) -> SeedPolicy:
+        return cls(robot, path=seed_policy_path(robot, cell.settings))
 
     def reset(self, seed: int) -> None:
         pass
@@ -69,21 +140,5 @@ class RLPolicy:
     def metrics(self) -> dict:
         return {}
 
-
-def _llm_policy(robot: Robot, **options) -> Policy:
-    from benchmark.llm.policy import LLMPolicy
-
-    return LLMPolicy(robot, **options)
-
-
-POLICIES: dict[str, Callable[..., Policy]] = {"stand": StandPolicy, "rl": RLPolicy, "llm": _llm_policy}
-
-
-def available_policies() -> list[str]:
-    return sorted(POLICIES)
-
-
-def make_policy(name: str, robot: Robot, **options) -> Policy:
-    if name not in POLICIES:
-        raise UnknownNameError("policy", name, available_policies())
-    return POLICIES[name](robot, **options)
+    def close(self) -> None:
+        pass

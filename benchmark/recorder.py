@@ -89,10 +89,16 @@ def _rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 
 class Recorder:
-    """Collects one trial through the runner's `on_step` hook and writes it to an .rrd file."""
+    """Collects one trial through the runner's `on_step` hook and writes it to an .rrd file.
 
-    def __init__(self, path: Path, robot: Robot, terrain: Terrain, sim, policy=None, name: str = "") -> None:
+    With `append`, the trial is added to the file as one more recording (its id is the trial's
+    name): an .rrd file is a sequence of streams, and the viewer opens every recording in it.
+    """
+
+    def __init__(self, path: Path, robot: Robot, terrain: Terrain, sim, policy=None, name: str = "",
+                 append: bool = False) -> None:
         self.path, self.robot, self.terrain, self.sim, self.policy = Path(path), robot, terrain, sim, policy
+        self.append = append
         self.name = name or self.path.stem
         self.times: list[float] = []
         self.body_pos: list[np.ndarray] = []
@@ -126,7 +132,9 @@ class Recorder:
 
         rec = rr.RecordingStream("promptwalk", recording_id=self.name)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        rec.save(self.path, default_blueprint=self._blueprint(rrb))
+        appending = self.append and self.path.is_file()
+        target = self.path.with_name(f".{self.path.name}.part") if appending else self.path
+        rec.save(target, default_blueprint=self._blueprint(rrb))
         self._log_static(rec, rr)
         if self.times:
             self._log_series(rec, rr)
@@ -144,6 +152,10 @@ class Recorder:
             rec.log("events", rr.TextLog(f"trial done: NWT {result.nwt:.3f}, success {result.success}, "
                                          f"distance {result.distance_m:.2f} m"))
         rec.disconnect()  # flushes the file
+        if appending:
+            with self.path.open("ab") as whole:
+                whole.write(target.read_bytes())
+            target.unlink()
         return self.path
 
     def _blueprint(self, rrb):

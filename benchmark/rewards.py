@@ -1,4 +1,4 @@
-"""The walking reward used to train the seed policies (see DESIGN.md section 5).
+"""The walking reward used to train the seed policies (how it was tuned: README, "Seed policies").
 
 A linear forward term saturating at the command makes the robot walk (exponential tracking
 alone gets stuck standing); feet air time rewards stepping over shuffling; heading and

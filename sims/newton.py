@@ -19,13 +19,11 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from robots import Robot, UnknownNameError
+from robots import Robot
 from sims.base import (BodyPoses, Dynamics, PhysicsConfig, RobotState, initial_joint_pos, pd_torque,
                         world_to_base_batch)
-from sims.mujoco import IMPRATIO
+from sims.newton_options import NewtonOptions
 from sims.terrain import Terrain
-
-SOLVERS = ("mujoco", "featherstone")
 
 
 def default_device() -> str:
@@ -46,15 +44,12 @@ class NewtonWorlds:
     """N worlds, one robot each, stepped together."""
 
     def __init__(self, robot: Robot, terrain: Terrain, physics: PhysicsConfig = PhysicsConfig(), worlds: int = 1,
-                 device: str | None = None, solver: str | None = None) -> None:
-        solver = solver or "mujoco"
-        if solver not in SOLVERS:
-            raise UnknownNameError("newton solver", solver, SOLVERS)
+                 options: NewtonOptions | None = None) -> None:
+        options = options or NewtonOptions()
+        device, solver = options.device, options.solver
         wp = _quiet_warp()
         import newton
 
-        if device is not None and device not in ("cpu", "cuda") and not device.startswith("cuda:"):
-            raise ValueError(f"unknown device '{device}'; valid: cpu, cuda, cuda:N")
         if device is not None and device.startswith("cuda") and not wp.is_cuda_available():
             raise ValueError(f"device '{device}' requested but no CUDA device is available; valid: cpu")
 
@@ -92,7 +87,7 @@ class NewtonWorlds:
                 warnings.filterwarnings("ignore", message=".*Value for nconmax is changed")
                 self.solver = newton.solvers.SolverMuJoCo(
                     self.model, use_mujoco_contacts=True, nconmax=200, njmax=600, cone="pyramidal",
-                    impratio=IMPRATIO, integrator="implicitfast")
+                    impratio=physics.impratio, integrator="implicitfast")
         else:
             self.solver = newton.solvers.SolverFeatherstone(self.model)
         self._state, self._next = self.model.state(), self.model.state()
@@ -280,9 +275,9 @@ class NewtonSim:
     name = "newton"
 
     def __init__(self, robot: Robot, terrain: Terrain, physics: PhysicsConfig = PhysicsConfig(),
-                 device: str | None = None, solver: str | None = None) -> None:
+                 options: NewtonOptions | None = None) -> None:
         self.robot, self.terrain, self.physics = robot, terrain, physics
-        self.worlds = NewtonWorlds(robot, terrain, physics, 1, device, solver)
+        self.worlds = NewtonWorlds(robot, terrain, physics, 1, options)
 
     def reset(self, seed: int = 0) -> RobotState:
         self.worlds.reset([seed])
@@ -305,7 +300,7 @@ class NewtonSim:
         return self.worlds.body_poses(0)
 
     def ray_height(self, x: float, y: float) -> float:
-        """Terrain height under (x, y) in the MuJoCo model Newton's solver built (for tests)."""
+        """Terrain height under (x, y) in the MuJoCo model Newton's solver built."""
         import mujoco
 
         model = self.worlds.solver.mj_model

@@ -35,7 +35,6 @@ with _quiet_stdout():
     from pybullet_utils.bullet_client import BulletClient
 
 from robots import Robot
-from sims import check_single_device
 from sims.base import BodyPoses, Dynamics, PhysicsConfig, RobotState, initial_joint_pos, pd_torque, world_to_base
 from sims.terrain import Terrain
 
@@ -49,9 +48,7 @@ class PybulletSim:
 
     name = "pybullet"
 
-    def __init__(self, robot: Robot, terrain: Terrain, physics: PhysicsConfig = PhysicsConfig(),
-                 device: str | None = None, solver: str | None = None) -> None:
-        check_single_device(self.name, device, solver)
+    def __init__(self, robot: Robot, terrain: Terrain, physics: PhysicsConfig = PhysicsConfig()) -> None:
         self.robot, self.terrain, self.physics = robot, terrain, physics
         with _quiet_stdout():
             self.client = p = BulletClient(connection_mode=pybullet.DIRECT)
@@ -185,7 +182,7 @@ class PybulletSim:
         return BodyPoses(self._link_names, np.array(positions), np.array(quats))
 
     def ray_height(self, x: float, y: float) -> float:
-        """Terrain height under (x, y), found by casting a ray down (for tests)."""
+        """Terrain height under (x, y), found by casting a ray down."""
         hit = self.client.rayTest([x, y, 5.0], [x, y, -5.0])[0]
         return hit[3][2]
 

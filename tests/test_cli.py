@@ -31,9 +31,15 @@ def test_run_table_is_readable():
 
 
 def test_list_names_everything():
+    from benchmark.llm.models import MODEL_FORMS
+    from benchmark.policies import available_policies
+    from robots import available_robots
+    from sims import available_sims
+
     listing = json.loads(bench("list", "--json").stdout)
-    assert listing == {"sims": ["mujoco", "newton", "pybullet"], "robots": ["a1", "anymal"],
-                       "terrains": ["flat", "rough"], "policies": ["llm", "rl", "stand"]}
+    assert listing == {"sims": available_sims(), "robots": available_robots(), "terrains": ["flat", "rough"],
+                       "policies": available_policies(), "models": list(MODEL_FORMS)}
+    assert {"mujoco", "newton", "pybullet"} <= set(listing["sims"]) and {"a1", "anymal"} <= set(listing["robots"])
 
 
 def test_perf_reports_both_loops_and_their_ratio():
@@ -49,9 +55,15 @@ def test_perf_reports_both_loops_and_their_ratio():
     (["run", "--robot", "spot"], "unknown robot 'spot'; valid: a1, anymal"),
     (["run", "--terrain", "stairs"], "unknown terrain 'stairs'; valid: flat, rough"),
     (["run", "--policy", "gpt9"], "unknown policy 'gpt9'; valid: llm, rl, stand"),
-    (["run", "--duration", "5"], "--llm-after (10 s) must be before the end of the episode (--duration 5 s)"),
+    (["run", "--duration", "5"], "llm_after (10 s) must be before the end of the episode (duration 5 s)"),
     (["run", "--encoding", "E9"], "unknown encoding 'E9'; valid: E1, E2, E3, E4, E5"),
     (["run", "--llm", "gpt5"], "unknown model 'gpt5'; valid: embedded, embedded:PATH.gguf, openai:MODEL"),
+    (["run", "--llm", "embedded:/tmp/nope.gguf"], "model file '/tmp/nope.gguf' not found"),
+    (["run", "--policy", "rl", "--history", "10"], "'history' does not apply to policy 'rl'"),
+    (["run", "--device", "cpu"], "'device' does not apply to simulator 'mujoco'"),
+    (["sweep", "cross_engine", "--set", "history=abc", "--dry-run"], "setting 'history' expects an integer"),
+    (["sweep", "cross_engine", "--only", "controler=rl", "--dry-run"], "--only: unknown setting 'controler'; valid:"),
+    (["train", "--init-from", "/tmp/nope.npz"], "--init-from '/tmp/nope.npz' not found"),
     (["train", "--reward", "speed=2"], "unknown reward term 'speed'"),
     (["train", "--rough-share", "1.5"], "--rough-share must be between 0 and 1, got 1.5"),
     (["sweep", "normalization", "--set", "encoding=E9", "--dry-run"], "unknown encoding 'E9'"),

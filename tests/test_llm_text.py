@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from benchmark.llm.encodings import ENCODINGS, get_encoding
-from benchmark.llm.observations import OBSERVATIONS, select
+from benchmark.llm.prompt_inputs import OBSERVATIONS, select
 from benchmark.llm.prompt import PARTS, PromptConfig, build_prompt, describe_robot
 from benchmark.llm.replies import gbnf_grammar, json_schema, parse_reply
 from robots import UnknownNameError, load_robot

@@ -45,10 +45,10 @@ def test_standing_matches_mujoco_within_3_cm(make):
 
 def test_devices_and_solvers_are_checked():
     robot, flat = load_robot("a1"), Terrain("flat")
-    with pytest.raises(ValueError, match="runs on cpu only"):
-        make_sim("mujoco", robot, flat, device="cuda")
+    with pytest.raises(ValueError, match="option 'device' does not apply to simulator 'mujoco'"):
+        make_sim("mujoco", robot, flat, options={"device": "cuda"})
     with pytest.raises(ValueError, match="unknown newton solver 'xpbd'; valid: featherstone, mujoco"):
-        make_sim("newton", robot, flat, solver="xpbd")
+        make_sim("newton", robot, flat, options={"solver": "xpbd"})
     with pytest.raises(ValueError, match="steps one world"):
         make_worlds("pybullet", robot, flat, worlds=2)
 

@@ -7,12 +7,12 @@ import json
 import numpy as np
 import pytest
 
-from benchmark.baselines import Cell, evaluate_cell
+from benchmark.cell import CellSpec, run_cell
 from benchmark.mlp import MlpActor
 from robots import available_robots, load_robot
 
 
-# The seed-policy criteria in MuJoCo, over the baselines' 5 trials of 10 s: success rate,
+# The seed-policy criteria in MuJoCo, over 5 trials of 10 s (seeds 0-4, as the cross-engine sweep): success rate,
 # mean forward speed (A1: 0.6 m/s at its 1 m/s command; ANYmal on rough ground: 0.45 m/s)
 # and mean |sideways drift|. A trial takes ~0.1 s of CPU.
 MIN_SPEED = {("a1", "flat"): 0.6, ("a1", "rough"): 0.6, ("anymal", "flat"): 0.6, ("anymal", "rough"): 0.45}
@@ -20,7 +20,7 @@ MIN_SPEED = {("a1", "flat"): 0.6, ("a1", "rough"): 0.6, ("anymal", "flat"): 0.6,
 
 @pytest.mark.parametrize(("robot_name", "terrain"), sorted(MIN_SPEED))
 def test_shipped_policy_walks_straight_in_mujoco(robot_name, terrain):
-    trials = evaluate_cell(Cell("mujoco", robot_name, terrain), trials=5, duration=10.0)
+    trials = run_cell(CellSpec(sim="mujoco", robot=robot_name, terrain=terrain, policy="rl"), range(5))
     assert np.mean([t.success for t in trials]) >= 0.8, [t.fall_reason for t in trials]
     assert np.mean([t.mean_vx for t in trials]) >= MIN_SPEED[(robot_name, terrain)]
     assert np.mean([abs(t.lateral_drift_m) for t in trials]) < 1.0, [t.lateral_drift_m for t in trials]
@@ -29,7 +29,7 @@ def test_shipped_policy_walks_straight_in_mujoco(robot_name, terrain):
 @pytest.mark.parametrize("robot_name", available_robots())
 def test_shipped_policy_documents_how_it_was_made(robot_name):
     robot = load_robot(robot_name)
-    meta = json.loads((robot.urdf.parent / "policy.json").read_text())
+    meta = json.loads((robot.folder / "policy.json").read_text())
     assert meta["robot"] == robot_name and "mujoco" in meta["trained_in"].split("+")
     assert meta["command"].startswith("bench train") and "torch" in meta["versions"]
     total, stage = 0, meta  # fine-tuned policies record the run they started from
@@ -37,9 +37,9 @@ def test_shipped_policy_documents_how_it_was_made(robot_name):
         total += stage["env_steps"]
         stage = stage.get("init_from")
     assert total >= 500_000
-    actor = MlpActor.load(robot.urdf.parent / "policy.npz")
+    actor = MlpActor.load(robot.folder / "policy.npz")
     assert actor.weights[0].shape == (256, 48) and actor.weights[-1].shape == (12, 256 // 2)
-    assert (robot.urdf.parent / "policy.npz").stat().st_size < 400_000  # actor only, no optimizer state
+    assert (robot.folder / "policy.npz").stat().st_size < 400_000  # actor only, no optimizer state
 
 
 def test_numpy_actor_equals_the_torch_network(tmp_path):

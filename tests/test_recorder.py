@@ -9,7 +9,7 @@ from collections import defaultdict
 import numpy as np
 import pytest
 
-from benchmark.policies import RLPolicy
+from benchmark.policies import SeedPolicy
 from benchmark.recorder import Recorder, urdf_shapes
 from benchmark.runner import EpisodeConfig, run_trial
 from robots import load_robot
@@ -40,13 +40,13 @@ def test_recording_holds_what_the_runner_saw(make, sim_name, tmp_path):
     sim = make(sim_name, "a1", "rough")
     robot, terrain = sim.robot, sim.terrain
     seen = []
-    recorder = Recorder(tmp_path / "trial.rrd", robot, terrain, sim, RLPolicy(robot))
+    recorder = Recorder(tmp_path / "trial.rrd", robot, terrain, sim, SeedPolicy(robot))
 
     def hook(loop):
         seen.append((loop.time, loop.state.joint_pos.copy(), loop.state.base_pos.copy(), loop.targets.copy()))
         recorder.on_step(loop)
 
-    result = run_trial(sim, robot, terrain, RLPolicy(robot), EpisodeConfig(duration=2.0), seed=4, on_step=hook)
+    result = run_trial(sim, robot, terrain, SeedPolicy(robot), EpisodeConfig(duration=2.0), seed=4, on_step=hook)
     path = recorder.write(result)
     entities = read_back(path)
     steps = result.control_steps

@@ -46,10 +46,10 @@ def test_shipped_experiments_expand_into_the_papers_grids():
     norm = load_experiment("normalization").trials()
     # The seed policy ignores the encoding: one seed-policy cell, not five, beside the five LLM cells.
     assert len({t.cell for t in norm}) == 6 and len(norm) == 30
-    assert sorted({t.cell.encoding for t in norm if t.cell.uses_llm}) == ["E1", "E2", "E3", "E4", "E5"]
-    assert all(t.cell.observation == "O2" and t.cell.duration == 20.0 for t in norm if t.cell.uses_llm)
-    assert [len(t.cell.prompt_parts) for t in load_experiment("description").trials()[::5]] == [1, 2, 3, 4, 5]
-    assert sorted({t.cell.history for t in load_experiment("history").trials()}) == [0, 10, 30, 50]
+    assert sorted({t.cell.settings.encoding for t in norm if t.cell.policy == "llm"}) == ["E1", "E2", "E3", "E4", "E5"]
+    assert all(t.cell.settings.observation == "O2" and t.cell.duration == 20.0 for t in norm if t.cell.policy == "llm")
+    assert [len(t.cell.settings.prompt_parts) for t in load_experiment("description").trials()[::5]] == [1, 2, 3, 4, 5]
+    assert sorted({t.cell.settings.history for t in load_experiment("history").trials()}) == [0, 10, 30, 50]
     cross = load_experiment("cross_engine")
     assert len({t.cell for t in cross.trials()}) == 3 * 2 * 2 * 2
     rl = cross.trials(only={"controller": "rl"})

@@ -11,42 +11,44 @@ run; the on-disk cache is bypassed so every latency is real.
 from __future__ import annotations
 
 import sys
-from dataclasses import replace
-
 import numpy as np
 from tqdm import tqdm
 
-from benchmark.llm.models import make_model
-from benchmark.llm.policy import LLMConfig, LLMPolicy
-from benchmark.llm.prompt import PromptConfig
-from benchmark.runner import EpisodeConfig, run_trial
-from robots import load_robot
-from sims import make_sim
-from sims.terrain import Terrain
+from benchmark.cell import CellSpec, Resources, Runtime, TrialHooks, run_cell
+from benchmark.llm.controller import CONTROL_DT, LLMSettings
 
 
 def measure(model_spec: str, histories: list[int], modes: list[str], queries: int, threads: int | None = None,
             url: str | None = None) -> list[dict]:
-    robot, terrain = load_robot("a1"), Terrain("flat")
-    model = make_model(model_spec, url=url, cache=False, threads=threads)
-    sim = make_sim("mujoco", robot, terrain)
+    """One row per (history, mode): latency of `queries` live queries after the seed policy filled the history."""
+    resources = Resources(Runtime(threads=threads, cache=False))
     rows = []
     try:
         cells = [(h, m) for h in histories for m in modes]
         for history, mode in tqdm(cells, desc="latency cells", file=sys.stderr, disable=None):
-            base = LLMConfig(model=model_spec, prompt=PromptConfig(history=history), history_mode=mode, cache=False)
-            takeover = round(base.seed_start + 0.1 * history, 1)
-            config = replace(base, llm_after=takeover)
-            policy = LLMPolicy(robot, config, model=model)
-            trial = run_trial(sim, robot, terrain, policy, EpisodeConfig(takeover + 0.1 * queries, takeover), seed=0)
-            latency = np.array([q.reply.latency_s for q in policy.queries])
+            takeover = round(LLMSettings().seed_start + CONTROL_DT * history, 1)
+            settings = LLMSettings(model=model_spec, url=url, history=history, history_mode=mode, llm_after=takeover)
+            cell = CellSpec(sim="mujoco", robot="a1", policy="llm", duration=takeover + CONTROL_DT * queries,
+                            settings=settings)
+            watch = _Queries()
+            trial = run_cell(cell, [0], resources, hooks=[watch])[0]
+            latency = np.array([q.reply.latency_s for q in watch.queries])
             rows.append({"history": history, "mode": mode, "queries": len(latency),
-                         "prompt_tokens": float(np.mean([q.reply.prompt_tokens for q in policy.queries])),
+                         "prompt_tokens": float(np.mean([q.reply.prompt_tokens for q in watch.queries])),
                          "latency_first_s": float(latency[0]), "latency_mean_s": float(latency.mean()),
                          "latency_p95_s": float(np.percentile(latency, 95)),
                          "latency_after_first_s": float(latency[1:].mean()) if len(latency) > 1 else None,
                          "fell": not trial.success})
     finally:
-        sim.close()
-        model.close()
+        resources.close()
     return rows
+
+
+class _Queries(TrialHooks):
+    """Keeps the LLM policy's queries of the trial."""
+
+    def start(self, seed, sim, policy, episode):
+        self.policy = policy
+
+    def end(self, seed, result) -> None:
+        self.queries = list(self.policy.queries)

@@ -61,10 +61,9 @@ class LanguageModel(Protocol):
     def close(self) -> None: ...
 
 
-def free_threads() -> int:
-    """Cores not busy with other work: llama.cpp collapses when it shares a core."""
-    cores = os.cpu_count() or 1
-    return max(1, cores - int(round(os.getloadavg()[0])))
+def default_threads() -> int:
+    """Every core: the load average right after other work said 1 of 2 cores was free and halved speed."""
+    return os.cpu_count() or 1
 
 
 class EmbeddedModel:
@@ -88,11 +87,15 @@ class EmbeddedModel:
         params.n_parallel = 1
         params.warmup = False
         params.verbosity = -1  # llama.cpp logs every request otherwise
-        params.cpuparams.n_threads = params.cpuparams_batch.n_threads = threads or free_threads()
+        params.cpuparams.n_threads = params.cpuparams_batch.n_threads = threads or default_threads()
         params.hostnames = ["127.0.0.1"]
         params.port = listen_port or 0
         self.threads = params.cpuparams.n_threads
         self._server = xllamacpp.Server(params)
+
+    @classmethod
+    def from_spec(cls, name: str | None, threads: int | None = None, **_: object) -> EmbeddedModel:
+        return cls(name, threads=threads)
 
     @property
     def url(self) -> str:
@@ -133,6 +136,11 @@ class OpenAIModel:
         self.url = (url or os.environ.get(URL_ENV) or "https://api.openai.com/v1").rstrip("/")
         self._key = api_key or next((os.environ[k] for k in API_KEY_ENV if os.environ.get(k)), None)
         self.id = f"openai:{self.url}:{model}:{api}"
+
+    @classmethod
+    def from_spec(cls, name: str | None, url: str | None = None, api_key: str | None = None,
+                  api: str = "completions", requests_per_minute: float | None = None, **_: object) -> OpenAIModel:
+        return cls(name, url=url, api_key=api_key, api=api, requests_per_minute=requests_per_minute)
 
     def __repr__(self) -> str:  # never show the key
         return f"OpenAIModel(model={self.model!r}, url={self.url!r}, api={self.api!r})"
@@ -224,15 +232,33 @@ class CachedModel:
         self.inner.close()
 
 
+# Model kinds by entry point: a spec is KIND or KIND:NAME. A new kind is one class plus one line.
+MODELS: dict[str, str] = {
+    "embedded": "benchmark.llm.models:EmbeddedModel",
+    "openai": "benchmark.llm.models:OpenAIModel",
+    "hold": "benchmark.llm.reference:HoldModel",
+}
+MODEL_FORMS = ("embedded", "embedded:PATH.gguf", "openai:MODEL", "hold")
+
+
+def check_model_spec(spec: str) -> None:
+    """Refuse an unknown kind, or a local model file that does not exist, before anything runs."""
+    kind, _, name = spec.partition(":")
+    if kind not in MODELS or (kind == "openai" and not name) or (kind not in ("embedded", "openai") and name):
+        raise ValueError(f"unknown model '{spec}'; valid: {', '.join(MODEL_FORMS)}")
+    if kind == "embedded" and name and not Path(name).is_file():
+        raise ValueError(f"model file '{name}' not found; pass a local .gguf path or use 'embedded'")
+
+
 def make_model(spec: str, url: str | None = None, api_key: str | None = None, api: str = "completions",
                cache: bool = True, threads: int | None = None,
                requests_per_minute: float | None = None) -> LanguageModel:
-    """`embedded`, `embedded:PATH.gguf` or `openai:MODEL`."""
+    """A model from its spec (see MODEL_FORMS), wrapped in the on-disk reply cache unless `cache` is off."""
+    from sims import load_entry_point
+
+    check_model_spec(spec)
     kind, _, name = spec.partition(":")
-    if kind == "embedded":
-        model: LanguageModel = EmbeddedModel(name or None, threads=threads)
-    elif kind == "openai" and name:
-        model = OpenAIModel(name, url=url, api_key=api_key, api=api, requests_per_minute=requests_per_minute)
-    else:
-        raise ValueError(f"unknown model '{spec}'; valid: embedded, embedded:PATH.gguf, openai:MODEL")
-    return CachedModel(model) if cache else model
+    cls = load_entry_point(MODELS[kind])
+    model = cls.from_spec(name or None, url=url, api_key=api_key, api=api, threads=threads,
+                          requests_per_minute=requests_per_minute)
+    return CachedModel(model) if cache and getattr(cls, "cacheable", True) else model

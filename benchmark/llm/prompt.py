@@ -14,11 +14,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from benchmark.llm.encodings import DEFAULT_ENCODING, Encoding, get_encoding
-from benchmark.llm.observations import DEFAULT_OBSERVATION, describe, select
+from benchmark.llm.prompt_inputs import DEFAULT_OBSERVATION, describe, select
 from robots import LEGS, Robot
 
 PARTS = ("task", "io", "joints", "pipeline", "illustration")
-LEG_NAMES = {"FR": "front right", "FL": "front left", "RR": "rear right", "RL": "rear left"}
 ROLE_NAMES = ("hip abduction", "thigh", "calf")
 
 

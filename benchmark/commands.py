@@ -1,0 +1,345 @@
+"""What each `bench` command does, once its options are parsed (`benchmark/cli.py` parses)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+from tqdm import tqdm
+
+from benchmark.cell import CellSpec, Resources, Runtime, TrialHooks, make_cell, run_cell
+from benchmark.llm.controller import CONTROL_DT
+from benchmark.runner import TrialResult, summarize
+from benchmark.settings import SettingError
+
+
+class CliError(SettingError):
+    """A user mistake: reported as one line, exit code 2."""
+
+
+class _Collect(TrialHooks):
+    """Finished trials, kept as they finish (an error later keeps them)."""
+
+    def __init__(self) -> None:
+        self.results: list[TrialResult] = []
+
+    def end(self, seed, result) -> None:
+        self.results.append(result)
+
+
+class _QueryBar(TrialHooks):
+    """A progress bar over the LLM queries of each trial."""
+
+    def start(self, seed, sim, policy, episode):
+        queries = getattr(policy, "queries", None)
+        if queries is None:
+            return None
+        total = int(round((episode.duration - episode.eval_start) / sim.physics.control_dt))
+        self.bar = tqdm(total=total, desc=f"seed {seed}: LLM queries", unit="query", file=sys.stderr, disable=None,
+                        leave=False)
+        return lambda loop: self.bar.update(len(policy.queries) - self.bar.n)
+
+    def end(self, seed, result) -> None:
+        if getattr(self, "bar", None) is not None:
+            self.bar.close()
+
+
+class _Record(TrialHooks):
+    """One Rerun recording per trial (into a folder), or every trial in one file."""
+
+    def __init__(self, cell: CellSpec, path: str | None, folder: str | None) -> None:
+        self.cell, self.path, self.folder = cell, path, folder
+
+    def start(self, seed, sim, policy, episode):
+        from benchmark.recorder import Recorder
+
+        c = self.cell
+        name = f"{c.sim}-{Path(c.robot).name}-{c.terrain}-{c.policy}-seed{seed}"
+        path = Path(self.folder) / f"{name}.rrd" if self.folder else Path(self.path)
+        self.recorder = Recorder(path, sim.robot, sim.terrain, sim, policy, name, append=not self.folder)
+        return self.recorder.on_step
+
+    def end(self, seed, result) -> None:
+        self.recorder.write(result)
+
+
+def cmd_run(args, values: dict, runtime: Runtime) -> int:
+    cell = make_cell(values, where="bench run")
+    if args.record:
+        Path(args.record).unlink(missing_ok=True)  # a run writes its trials into one fresh file
+    collect = _Collect()
+    hooks = [collect, _QueryBar()]
+    if args.record or args.record_dir:
+        hooks.append(_Record(cell, args.record, args.record_dir))
+    seeds = range(args.seed, args.seed + args.trials)
+    trials_bar = tqdm(total=args.trials, desc=cell.label(), unit="trial", file=sys.stderr, disable=None)
+    hooks.append(type("_Tick", (TrialHooks,), {"end": lambda self, seed, result: trials_bar.update()})())
+    error, resources = None, Resources(runtime)
+    try:
+        run_cell(cell, seeds, resources, hooks=hooks)
+    except (OSError, RuntimeError) as err:  # keep what finished: report it, then the error
+        error = err
+    finally:
+        trials_bar.close()
+        resources.close()
+    trials = collect.results
+    if error is not None and not trials:
+        print(f"bench: error: {error}", file=sys.stderr)
+        return 1
+    result = {**cell.params(), "eval_start": cell.eval_start, "seed": args.seed,
+              "trials": [t.to_dict() for t in trials], **summarize(trials)}
+    if args.json:
+        print(json.dumps(result))
+    else:
+        print_run_table(cell, result)
+    if args.record:
+        print(f"recording: {args.record} ({len(trials)} trial(s), one recording per seed); open with "
+              f"'bench view {args.record}'", file=sys.stderr)
+    if error is not None:
+        print(f"bench: error: {error} ({len(trials)} finished trial(s) reported above)", file=sys.stderr)
+        return 1
+    return 0
+
+
+def print_run_table(cell: CellSpec, result: dict) -> None:
+    print(f"{cell.policy} on {cell.robot} / {cell.sim} / {cell.terrain}, {len(result['trials'])} x "
+          f"{cell.duration:g} s" + (f" (metrics from {cell.eval_start:g} s)" if cell.eval_start else ""))
+    print(f"{'seed':>4} {'nwt':>5} {'ok':>3} {'dist m':>7} {'vx m/s':>7} {'drift m':>8}  fall")
+    for t in result["trials"]:
+        fall = f"{t['fall_time']:.1f} s: {t['fall_reason']}" if t["fall_time"] is not None else "-"
+        print(f"{t['seed']:>4} {t['nwt']:>5.2f} {'yes' if t['success'] else 'no':>3} {t['distance_m']:>7.2f} "
+              f"{t['mean_vx']:>7.2f} {t['lateral_drift_m']:>8.2f}  {fall}")
+    print(f"mean NWT {result['nwt']:.3f}, success rate {result['success_rate']:.2f}, "
+          f"distance {result['distance_m']:.2f} m, vx {result['mean_vx']:.2f} m/s")
+    llm_trials = [t for t in result["trials"] if t.get("queries")]
+    if llm_trials:
+        print(f"{'seed':>4} {'queries':>7} {'cached':>6} {'unparsed':>8} {'tokens in/out':>14} {'gpt-4 in/out':>13} "
+              f"{'latency s':>10} {'p95 s':>6} {'RTF':>6}")
+        for t in llm_trials:
+            live = t["queries"] - t["cache_hits"]
+            rtf = f"{t['realtime_factor']:.3f}" if live and t.get("realtime_factor") else "-"
+            latency = f"{t['latency_mean_s']:>10.2f} {t['latency_p95_s']:>6.2f}" if live else f"{'-':>10} {'-':>6}"
+            print(f"{t['seed']:>4} {t['queries']:>7} {t['cache_hits']:>6} {t['parse_failures']:>8} "
+                  f"{t['input_tokens']:>8.0f}/{t['output_tokens']:<5.0f} "
+                  f"{t['gpt4_input_tokens']:>7.0f}/{t['gpt4_output_tokens']:<5.0f} {latency} {rtf:>6}")
+        if any(t["cache_hits"] for t in llm_trials):
+            print("cached replies come from the on-disk cache (--no-cache to query live); latency and RTF count "
+                  "live queries only")
+
+
+def cmd_sweep(args, overrides_text: list[str], only_text: list[str]) -> int:
+    import importlib.util
+
+    from benchmark.experiment import available_experiments, load_experiment, parse_overrides
+    from benchmark.llm.models import LLMError
+    from benchmark.store import ResultStore
+    from benchmark.sweep import TrialError, run_sweep
+
+    if args.list or args.experiment is None:
+        if args.experiment is None and not args.list:
+            raise CliError(f"name an experiment: {', '.join(available_experiments())} (or a path to a .toml)")
+        for name in available_experiments():
+            exp = load_experiment(name)
+            print(f"{name:<14} {len(exp.trials()):>4} trials  {exp.title}")
+        return 0
+    experiment = load_experiment(args.experiment)
+    overrides = parse_overrides(overrides_text)
+    trials = experiment.trials(overrides, key_values(only_text, "--only", "KEY=VALUE"))
+    if args.executor == "ray" and importlib.util.find_spec("ray") is None:
+        raise CliError("--executor ray needs Ray: pip install -e '.[ray]'")
+    if not trials:
+        raise CliError(f"no cell of '{experiment.name}' matches --only {' '.join(only_text)}")
+    root = Path(args.results or f"results/{experiment.name}")
+    if root.exists() and not root.is_dir():
+        raise CliError(f"--results '{root}' is a file; give a directory (the store holds one file per trial)")
+    store = ResultStore(root)
+    done = store.done_ids()
+    if args.dry_run:
+        cells: dict[str, list] = {}
+        for t in trials:
+            cells.setdefault(t.cell_id, []).append(t)
+        print(f"{experiment.name}: {len(cells)} cells, {len(trials)} trials, "
+              f"{sum(t.id not in done for t in trials)} missing in {store.root}")
+        for group in cells.values():
+            t = group[0]
+            params = {**t.cell.params(), **t.labels}
+            shown = {k: params[k] for k in [*experiment.axes, *overrides] if k in params}
+            print(f"  {t.cell_id}  {t.cell.label():<32} {json.dumps(shown)}  seeds {[x.seed for x in group]}"
+                  f"  missing {sum(x.id not in done for x in group)}")
+        return 0
+    try:
+        outcome = run_sweep(trials, store, workers=args.workers, executor=args.executor, address=args.ray_address,
+                            requests_per_minute=args.rate_limit, threads=args.threads,
+                            command=" ".join(["bench", *args.argv]))
+    except (TrialError, LLMError) as err:
+        print(f"bench: error: {err} ({len(store.done_ids())} trial(s) stored in {store.root}; "
+              "run the same command again to resume)", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"bench: interrupted ({len(store.done_ids())} trial(s) stored in {store.root}; "
+              "run the same command again to resume)", file=sys.stderr)
+        return 130
+    print(f"{experiment.name}: {outcome.ran} trial(s) run, {outcome.skipped} already stored, "
+          f"{outcome.total} in the grid; {outcome.wall_s:.1f} s with {args.workers} {args.executor} worker(s); "
+          f"results in {store.root}")
+    return 0
+
+
+def key_values(items: list[str], option: str, form: str) -> dict[str, str]:
+    """`KEY=VALUE` words of an option as a dict; anything else is a one-line error."""
+    out = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise CliError(f"{option} expects {form}, got '{item}'")
+        out[key] = value
+    return out
+
+
+def cmd_report(args) -> int:
+    from benchmark.report import write_reports
+    from benchmark.store import load_results
+
+    try:
+        frame = load_results(args.results)
+    except FileNotFoundError as err:
+        raise CliError(str(err)) from None
+    if frame.empty:
+        raise CliError(f"'{args.results}' holds no trials yet; run 'bench sweep' into it first")
+    print(f"writing reports into {Path(args.out).resolve()}", file=sys.stderr)
+    for path in write_reports(frame, Path(args.out), args.format):
+        print(path)
+    return 0
+
+
+def cmd_view(args) -> int:
+    if not Path(args.path).is_file():
+        raise CliError(f"recording '{args.path}' not found")
+    viewer = shutil.which("rerun")
+    if viewer is None:
+        raise CliError("the 'rerun' viewer is not on PATH; it comes with rerun-sdk (pip install -e .)")
+    if args.web:
+        print(f"serving {args.path} in Rerun's web viewer: open http://localhost:{args.port} (Ctrl-C stops)",
+              file=sys.stderr, flush=True)
+        return subprocess.call([viewer, "--serve-web", "--web-viewer-port", str(args.port), args.path])
+    return subprocess.call([viewer, args.path])
+
+
+def cmd_train(values: dict, rewards: dict) -> int:
+    from benchmark.settings import build
+    from benchmark.train import TrainConfig, reward_weights, train
+    from robots import load_robot
+    from sims import engine
+
+    config = build(TrainConfig, {**values, "rewards": reward_weights(rewards)}, where="bench train")
+    load_robot(config.robot)
+    for sim in config.sim:
+        engine(sim)
+    if not 0.0 <= config.rough_share <= 1.0:
+        raise CliError(f"--rough-share must be between 0 and 1, got {config.rough_share}")
+    if config.init_from and not Path(config.init_from).is_file():
+        raise CliError(f"--init-from '{config.init_from}' not found; give a policy.npz written by bench train")
+    path = train(config)
+    print(f"policy written to {path}; log in {config.out_dir / 'train_log.csv'}; evaluate it with "
+          f"'bench run --policy rl --robot {config.robot} --policy-file {path}'")
+    return 0
+
+
+def cmd_ship(args) -> int:
+    from benchmark.train import ship_policy
+    from robots import load_robot
+
+    load_robot(args.robot)
+    if not Path(args.path).is_file():
+        raise CliError(f"'{args.path}' not found; give a policy.npz written by bench train")
+    print(f"shipped {ship_policy(Path(args.path), args.robot)}")
+    return 0
+
+
+class _Prompt(TrialHooks):
+    def start(self, seed, sim, policy, episode):
+        self.policy = policy
+
+    def end(self, seed, result) -> None:
+        self.text = self.policy.last_prompt
+
+
+def cmd_prompt(args, values: dict, runtime: Runtime) -> int:
+    """The prompt at the takeover of a real trial: the seed policy fills the history, a reference
+    model that only echoes stands in for the LLM, so nothing is queried."""
+    from dataclasses import replace
+
+    from benchmark.llm.tokens import gpt4_tokens, server_tokens
+
+    base = make_cell({**values, "policy": "llm"}, where="bench prompt")
+    s, dt = base.settings, CONTROL_DT
+    takeover = round(s.seed_start + dt * s.history, 6)
+    cell = replace(base, duration=takeover + dt, settings=replace(s, model="hold", llm_after=takeover))
+    watch = _Prompt()
+    run_cell(cell, [args.seed], hooks=[watch])
+    text = watch.text
+    if args.tokenizer == "gpt-4":
+        tokens = gpt4_tokens(text)
+    else:
+        from benchmark.llm.models import EmbeddedModel
+
+        model = EmbeddedModel(s.model.partition(":")[2] or None, threads=runtime.threads)
+        tokens = server_tokens(model.url, text)
+        model.close()
+    if args.json:
+        print(json.dumps({"robot": base.robot, "history": s.history, "encoding": s.encoding,
+                          "observation": s.observation, "prompt_parts": list(s.prompt_parts),
+                          "tokenizer": args.tokenizer, "tokens": tokens, "prompt": text}))
+    else:
+        print(text)
+        print(f"\n[{tokens} tokens ({args.tokenizer}), history {s.history}, encoding {s.encoding}]", file=sys.stderr)
+    return 0
+
+
+def cmd_latency(args, threads: int | None) -> int:
+    from benchmark.llm.latency import measure
+    from benchmark.llm.models import check_model_spec
+
+    check_model_spec(args.llm)
+    rows = measure(args.llm, args.histories, args.modes, args.queries, threads, args.llm_url)
+    if args.json:
+        print(json.dumps({"model": args.llm, "rows": rows}))
+        return 0
+    print(f"{args.llm}: query latency, {args.queries} queries per cell, cache off")
+    print(f"{'history':>7} {'mode':>8} {'tokens':>7} {'first s':>8} {'mean s':>7} {'p95 s':>6} {'after 1st s':>11}")
+    for r in rows:
+        after = f"{r['latency_after_first_s']:.2f}" if r["latency_after_first_s"] is not None else "-"
+        print(f"{r['history']:>7} {r['mode']:>8} {r['prompt_tokens']:>7.0f} {r['latency_first_s']:>8.2f} "
+              f"{r['latency_mean_s']:>7.2f} {r['latency_p95_s']:>6.2f} {after:>11}")
+    return 0
+
+
+def cmd_list(args) -> int:
+    from benchmark.llm.models import MODEL_FORMS
+    from benchmark.policies import available_policies
+    from robots import available_robots
+    from sims import available_sims
+    from sims.terrain import TERRAINS
+
+    listing = {"sims": available_sims(), "robots": available_robots(), "terrains": list(TERRAINS),
+               "policies": available_policies(), "models": list(MODEL_FORMS)}
+    if args.json:
+        print(json.dumps(listing))
+    else:
+        for key, names in listing.items():
+            print(f"{key:9} {', '.join(names)}")
+    return 0
+
+
+def cmd_perf(args, values: dict) -> int:
+    from benchmark.perf import measure, print_table
+
+    result = measure(make_cell(values, where="bench perf"), args.steps, args.rounds, args.worlds)
+    if args.json:
+        print(json.dumps(result))
+    else:
+        print_table(result)
+    return 0

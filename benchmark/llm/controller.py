@@ -1,0 +1,205 @@
+"""The LLM policy and the paper's protocol.
+
+Episode (defaults): the robot stands for `seed_start` s, then the seed RL policy walks and
+fills the history with (observation, action) pairs; at `llm_after` s the LLM takes over and
+is queried every control step with the description, the last `history` pairs and the current
+observation. Simulation time waits while the model thinks. A reply that does not parse is
+counted, kept with its text, and handled by holding the last action.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from benchmark.llm.encodings import DEFAULT_ENCODING, ENCODINGS, get_encoding
+from benchmark.llm.models import MODEL_FORMS, Constraint, LanguageModel, Reply, Sampling, check_model_spec, make_model
+from benchmark.llm.prompt import PARTS, PromptConfig, build_prompt, describe_robot
+from benchmark.llm.prompt_inputs import DEFAULT_OBSERVATION, OBSERVATIONS
+from benchmark.llm.replies import gbnf_grammar, json_schema, parse_reply
+from benchmark.llm.tokens import gpt4_tokens
+from benchmark.observation import llm_observation
+from benchmark.policies import SeedPolicy
+from benchmark.settings import SettingError, setting
+from robots import Robot
+from sims.base import PhysicsConfig, RobotState
+
+if TYPE_CHECKING:
+    from benchmark.cell import CellSpec, Resources, Runtime
+
+HISTORY_MODES = ("sliding", "block")
+CONTROL_DT = PhysicsConfig().control_dt  # s, the 10 Hz control period every engine runs
+
+
+@dataclass(frozen=True)
+class LLMSettings:
+    """What an LLM cell measures: the model, its prompt and the protocol's timing."""
+
+    model: str = setting("embedded", f"model: {', '.join(MODEL_FORMS)}", flag="--llm")
+    url: str | None = setting(None, "OpenAI-compatible base URL, e.g. http://127.0.0.1:8080/v1 (or "
+                                    "PROMPTWALK_LLM_URL); the key comes from PROMPTWALK_LLM_API_KEY or "
+                                    "OPENAI_API_KEY and is never printed", flag="--llm-url")
+    api: str = setting("completions", "endpoint kind", choices=("completions", "chat"), flag="--llm-api")
+    history: int = setting(50, "observation/action pairs in the prompt", minimum=0)
+    history_mode: str = setting("sliding", "sliding window, or grow-then-cut-in-blocks (keeps llama.cpp's "
+                                           "prompt cache warm)", choices=HISTORY_MODES)
+    prompt_parts: tuple[str, ...] = setting(PARTS, "description parts", choices=PARTS)
+    encoding: str = setting(DEFAULT_ENCODING, "numbers: " + "; ".join(f"{k} {e.title}" for k, e in ENCODINGS.items()),
+                            choices=tuple(ENCODINGS))
+    observation: str = setting(DEFAULT_OBSERVATION, "prompt inputs: "
+                               + "; ".join(f"{k} {v[0]}" for k, v in OBSERVATIONS.items()), choices=tuple(OBSERVATIONS))
+    constrained: bool = setting(True, "grammar/schema on the reply (--no-constrained: the paper's setting)")
+    temperature: float = setting(0.0, "sampling temperature", minimum=0)
+    llm_after: float = setting(10.0, "s: the LLM takes over", minimum=0)
+    seed_start: float = setting(1.0, "s: the seed policy starts filling the history", minimum=0)
+    block: int = 10  # pairs cut at once in block mode
+
+    eval_start_setting = "llm_after"  # the setting that starts the evaluated phase
+
+    @property
+    def eval_start(self) -> float:
+        return self.llm_after
+
+    @property
+    def prompt(self) -> PromptConfig:
+        return PromptConfig(parts=self.prompt_parts, history=self.history, encoding=self.encoding,
+                            observation=self.observation)
+
+    @property
+    def sampling(self) -> Sampling:
+        return Sampling(temperature=self.temperature)
+
+    def validate(self) -> None:
+        check_model_spec(self.model)
+        if not self.seed_start <= self.llm_after:
+            raise SettingError(f"seed_start ({self.seed_start:g} s) must not be after llm_after ({self.llm_after:g} s)")
+        if self.block < 1:
+            raise SettingError(f"block must be >= 1 pair, got {self.block}")
+
+
+@dataclass
+class Query:
+    """One LLM call, kept for metrics and recordings."""
+
+    time: float
+    prompt_tail: str
+    reply: Reply
+    parsed: bool
+    gpt4_in: int
+    gpt4_out: int
+
+
+@dataclass
+class _Trial:
+    history: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
+    window_start: int = 0
+    queries: list[Query] = field(default_factory=list)
+    last_action: np.ndarray | None = None
+
+
+class LLMPolicy:
+    name = "llm"
+
+    def __init__(self, robot: Robot, settings: LLMSettings = LLMSettings(), runtime: Runtime | None = None,
+                 model: LanguageModel | None = None, seed_policy=None) -> None:
+        from benchmark.cell import Runtime
+
+        self.robot, self.settings, self.runtime = robot, settings, runtime or Runtime()
+        self.seed_policy = seed_policy or SeedPolicy(robot)
+        self._owns_model = model is None
+        self.model = model or _new_model(settings, self.runtime)
+        self.encoding = get_encoding(settings.encoding)
+        self.description = describe_robot(robot, settings.prompt, control_hz=1.0 / CONTROL_DT)
+        self.constraint = Constraint()
+        if settings.constrained:
+            self.constraint = (Constraint(schema=json_schema(self.encoding, robot.num_joints))
+                               if settings.api == "chat" and settings.model.startswith("openai")
+                               else Constraint(grammar=gbnf_grammar(self.encoding, robot.num_joints)))
+        self.seed_action = np.zeros(robot.num_joints)  # what the seed policy would do now (for recordings)
+        self.last_prompt = ""
+        self._trial = _Trial()
+
+    @classmethod
+    def from_cell(cls, cell: CellSpec, robot: Robot, resources: Resources) -> LLMPolicy:
+        s, rt = cell.settings, resources.runtime
+        key = (s.model, s.url, s.api, rt.threads, rt.requests_per_minute, rt.cache)
+        return cls(robot, s, rt, model=resources.model(key, lambda: _new_model(s, rt)))
+
+    def reset(self, seed: int) -> None:
+        self.seed_policy.reset(seed)
+        self._trial = _Trial(last_action=np.zeros(self.robot.num_joints))
+
+    def _window(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        t, h = self._trial, self.settings.history
+        if h == 0:
+            return []
+        if self.settings.history_mode == "sliding":
+            return t.history[-h:]
+        while len(t.history) - t.window_start > h:  # cut whole blocks: the prompt prefix stays put between cuts
+            t.window_start += self.settings.block
+        return t.history[t.window_start:]
+
+    def act(self, obs: np.ndarray, state: RobotState) -> np.ndarray:
+        t, s = self._trial, self.settings
+        self.seed_action = self.seed_policy.act(obs, state)
+        llm_obs = llm_observation(obs)
+        if state.time < s.seed_start - 1e-9:
+            action = np.zeros(self.robot.num_joints)
+        elif state.time < s.llm_after - 1e-9:
+            action = self.seed_action
+            t.history.append((llm_obs, action))
+        else:
+            action = self._query(llm_obs, state.time)
+            t.history.append((llm_obs, action))
+        t.last_action = action
+        return action
+
+    def _query(self, llm_obs: np.ndarray, now: float) -> np.ndarray:
+        t = self._trial
+        prompt = build_prompt(self.description, self._window(), llm_obs, self.settings.prompt)
+        self.last_prompt = prompt
+        reply = self.model.complete(prompt, self.settings.sampling, self.constraint)
+        action = parse_reply(reply.text, self.encoding, self.robot.num_joints)
+        tail = prompt[prompt.rfind("Input:", 0, prompt.rfind("Input:")):]  # newest pair's input onwards
+        t.queries.append(Query(now, tail, reply, action is not None, gpt4_tokens(prompt), gpt4_tokens(reply.text)))
+        return action if action is not None else t.last_action  # unparseable: hold the last action
+
+    @property
+    def queries(self) -> list[Query]:
+        return self._trial.queries
+
+    def metrics(self) -> dict:
+        q = self._trial.queries
+        if not q:
+            return {"queries": 0, "parse_failures": 0}
+        latency = np.array([x.reply.latency_s for x in q if not x.reply.cached] or [0.0])
+        tokens_in = np.array([x.reply.prompt_tokens for x in q], dtype=float)
+        tokens_out = np.array([x.reply.completion_tokens for x in q], dtype=float)
+        out = {
+            "queries": len(q),
+            "parse_failures": sum(not x.parsed for x in q),
+            "failed_replies": [x.reply.text for x in q if not x.parsed][:5],
+            "input_tokens": float(tokens_in.mean()),
+            "output_tokens": float(tokens_out.mean()),
+            "gpt4_input_tokens": float(np.mean([x.gpt4_in for x in q])),
+            "gpt4_output_tokens": float(np.mean([x.gpt4_out for x in q])),
+            "latency_mean_s": float(latency.mean()),
+            "latency_p95_s": float(np.percentile(latency, 95)),
+            "realtime_factor": float(CONTROL_DT / latency.mean()) if latency.mean() > 0 else None,
+            "cache_hits": sum(x.reply.cached for x in q),
+        }
+        rt = self.runtime
+        if rt.price_in is not None and rt.price_out is not None:
+            out["cost_usd"] = float((tokens_in.sum() * rt.price_in + tokens_out.sum() * rt.price_out) / 1e6)
+        return out
+
+    def close(self) -> None:
+        if self._owns_model:
+            self.model.close()
+
+
+def _new_model(settings: LLMSettings, runtime: Runtime) -> LanguageModel:
+    return make_model(settings.model, url=settings.url, api=settings.api, cache=runtime.cache,
+                      threads=runtime.threads, requests_per_minute=runtime.requests_per_minute)

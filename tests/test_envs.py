@@ -84,9 +84,9 @@ def test_feet_air_time_rewards_long_steps():
 
 
 def test_smoke_training_writes_a_loadable_policy_and_log(tmp_path):
-    from benchmark.train import train
+    from benchmark.train import TrainConfig, train
 
-    path = train("a1", ["mujoco"], steps=4096, seed=0, out=tmp_path, eval_every=2048, ship=False)
+    path = train(TrainConfig(robot="a1", sim=("mujoco",), steps=4096, seed=0, out=str(tmp_path), eval_every=2048))
     actor = MlpActor.load(path)
     assert actor.meta["env_steps"] >= 4096 and actor.meta["trained_in"] == "mujoco"
     action = actor(np.zeros(48))
@@ -96,9 +96,13 @@ def test_smoke_training_writes_a_loadable_policy_and_log(tmp_path):
 
 
 def test_training_is_deterministic_for_a_seed(tmp_path):
-    from benchmark.train import train
+    from benchmark.train import TrainConfig, train
 
-    a = MlpActor.load(train("a1", ["mujoco"], 2048, 7, tmp_path / "a", 10**9, False))
-    b = MlpActor.load(train("a1", ["mujoco"], 2048, 7, tmp_path / "b", 10**9, False))
+    config = TrainConfig(robot="a1", steps=2048, seed=7, eval_every=10**9)
+    a = MlpActor.load(train(TrainConfig(**{**config.__dict__, "out": str(tmp_path / "a")})))
+    b = MlpActor.load(train(TrainConfig(**{**config.__dict__, "out": str(tmp_path / "b")})))
     for wa, wb in zip(a.weights, b.weights):
         np.testing.assert_array_equal(wa, wb)
+    # no periodic evaluation fell due: the final policy is still evaluated, and logged
+    rows = list(csv.DictReader((tmp_path / "a" / "train_log.csv").open()))
+    assert [int(r["env_steps"]) for r in rows] == [2048] and rows[0]["eval_nwt"] != ""

@@ -18,6 +18,7 @@ from benchmark.llm.encodings import DEFAULT_ENCODING, ENCODINGS, get_encoding
 from benchmark.llm.models import MODEL_FORMS, Constraint, LanguageModel, Reply, Sampling, check_model_spec, make_model
 from benchmark.llm.prompt import PARTS, PromptConfig, build_prompt, describe_robot
 from benchmark.llm.prompt_inputs import DEFAULT_OBSERVATION, OBSERVATIONS
+from benchmark.llm.reference import knn_answer
 from benchmark.llm.replies import gbnf_grammar, json_schema, parse_reply
 from benchmark.llm.tokens import gpt4_tokens
 from benchmark.observation import llm_observation
@@ -97,6 +98,7 @@ class _Trial:
     window_start: int = 0
     queries: list[Query] = field(default_factory=list)
     last_action: np.ndarray | None = None
+    knn_agree: int = 0  # replies within one encoding step of the kNN answer on every value
 
 
 class LLMPolicy:
@@ -160,8 +162,13 @@ class LLMPolicy:
         t = self._trial
         prompt = build_prompt(self.description, self._window(), llm_obs, self.settings.prompt)
         self.last_prompt = prompt
+        if getattr(self.model, "privileged", False):  # the oracle reference model: the seed policy's answer
+            self.model.set_reference(self.seed_action, self.encoding)
         reply = self.model.complete(prompt, self.settings.sampling, self.constraint)
         action = parse_reply(reply.text, self.encoding, self.robot.num_joints)
+        knn = parse_reply(knn_answer(prompt), self.encoding, self.robot.num_joints)
+        t.knn_agree += int(action is not None and knn is not None
+                           and bool(np.all(np.abs(action - knn) <= self.encoding.resolution + 1e-9)))
         tail = prompt[prompt.rfind("Input:", 0, prompt.rfind("Input:")):]  # newest pair's input onwards
         t.queries.append(Query(now, tail, reply, action is not None, gpt4_tokens(prompt), gpt4_tokens(reply.text)))
         return action if action is not None else t.last_action  # unparseable: hold the last action
@@ -189,6 +196,7 @@ class LLMPolicy:
             "latency_p95_s": float(np.percentile(latency, 95)),
             "realtime_factor": float(CONTROL_DT / latency.mean()) if latency.mean() > 0 else None,
             "cache_hits": sum(x.reply.cached for x in q),
+            "knn_agreement": self._trial.knn_agree / len(q),
         }
         rt = self.runtime
         if rt.price_in is not None and rt.price_out is not None:

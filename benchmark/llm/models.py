@@ -237,8 +237,11 @@ MODELS: dict[str, str] = {
     "embedded": "benchmark.llm.models:EmbeddedModel",
     "openai": "benchmark.llm.models:OpenAIModel",
     "hold": "benchmark.llm.reference:HoldModel",
+    "knn": "benchmark.llm.reference:KnnModel",
+    "replay": "benchmark.llm.reference:ReplayModel",
+    "oracle": "benchmark.llm.reference:OracleModel",
 }
-MODEL_FORMS = ("embedded", "embedded:PATH.gguf", "openai:MODEL", "hold")
+MODEL_FORMS = ("embedded", "embedded:PATH.gguf", "openai:MODEL", "hold", "knn", "replay", "oracle")
 
 
 def check_model_spec(spec: str) -> None:

@@ -107,13 +107,16 @@ def cmd_run(args, values: dict, runtime: Runtime) -> int:
 def print_run_table(cell: CellSpec, result: dict) -> None:
     print(f"{cell.policy} on {cell.robot} / {cell.sim} / {cell.terrain}, {len(result['trials'])} x "
           f"{cell.duration:g} s" + (f" (metrics from {cell.eval_start:g} s)" if cell.eval_start else ""))
-    print(f"{'seed':>4} {'nwt':>5} {'ok':>3} {'dist m':>7} {'vx m/s':>7} {'drift m':>8}  fall")
+    print(f"{'seed':>4} {'nwt':>5} {'ok':>3} {'upright':>7} {'dist m':>7} {'vx m/s':>7} {'drift m':>8} "
+          f"{'yaw rad':>7}  end")
     for t in result["trials"]:
-        fall = f"{t['fall_time']:.1f} s: {t['fall_reason']}" if t["fall_time"] is not None else "-"
-        print(f"{t['seed']:>4} {t['nwt']:>5.2f} {'yes' if t['success'] else 'no':>3} {t['distance_m']:>7.2f} "
-              f"{t['mean_vx']:>7.2f} {t['lateral_drift_m']:>8.2f}  {fall}")
+        end = (f"fell at {t['fall_time']:.1f} s: {t['fall_reason']}" if t["fall_time"] is not None
+               else f"stopped walking at {t['stop_time']:.1f} s" if t["stop_time"] is not None else "-")
+        print(f"{t['seed']:>4} {t['nwt']:>5.2f} {'yes' if t['success'] else 'no':>3} {t['upright_fraction']:>7.2f} "
+              f"{t['distance_m']:>7.2f} {t['mean_vx']:>7.2f} {t['lateral_drift_m']:>8.2f} "
+              f"{t['heading_change_rad']:>7.2f}  {end}")
     print(f"mean NWT {result['nwt']:.3f}, success rate {result['success_rate']:.2f}, "
-          f"distance {result['distance_m']:.2f} m, vx {result['mean_vx']:.2f} m/s")
+          f"upright {result['upright_fraction']:.2f}, distance {result['distance_m']:.2f} m, vx {result['mean_vx']:.2f} m/s")
     llm_trials = [t for t in result["trials"] if t.get("queries")]
     if llm_trials:
         print(f"{'seed':>4} {'queries':>7} {'cached':>6} {'unparsed':>8} {'tokens in/out':>14} {'gpt-4 in/out':>13} "

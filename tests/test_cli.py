@@ -20,14 +20,15 @@ def test_run_json_reports_trials_and_means():
     result = json.loads(out.stdout)
     assert (result["sim"], result["robot"], result["terrain"], result["policy"]) == ("pybullet", "anymal", "rough", "stand")
     assert [t["seed"] for t in result["trials"]] == [0, 1]
-    assert result["success_rate"] == 1.0 and result["nwt"] == 1.0
-    assert {"nwt", "success", "distance_m", "mean_vx", "fall_time"} <= set(result["trials"][0])
+    assert result["upright_fraction"] == 1.0 and result["success_rate"] == 0.0 and result["nwt"] <= 0.1
+    assert {"nwt", "success", "upright_fraction", "distance_m", "mean_vx", "fall_time", "heading_change_rad",
+            "walk_window_s"} <= set(result["trials"][0])
 
 
 def test_run_table_is_readable():
     out = bench("run", "--policy", "stand", "--trials", "1", "--duration", "1")
     assert out.returncode == 0, out.stderr
-    assert "mean NWT 1.000, success rate 1.00" in out.stdout
+    assert "mean NWT 0.000, success rate 0.00, upright 1.00" in out.stdout
 
 
 def test_list_names_everything():

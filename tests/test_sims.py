@@ -29,7 +29,8 @@ def _stand(sim, seconds: float = 3.0):
 def test_every_cell_stands_for_5_s(make, sim_name, robot_name, terrain):
     sim = make(sim_name, robot_name, terrain)
     result = run_trial(sim, sim.robot, sim.terrain, StandPolicy(sim.robot), EpisodeConfig(duration=5.0), seed=3)
-    assert result.success and result.nwt == 1.0, result.fall_reason
+    assert result.upright_fraction == 1.0 and result.fall_time is None, result.fall_reason
+    assert not result.success and result.nwt == 0.0  # standing is not walking
     assert abs(result.distance_m) < 0.1 and abs(result.lateral_drift_m) < 0.1
 
 
@@ -97,8 +98,8 @@ def test_a_limp_robot_falls_and_the_trial_says_why(sim_name):
         result = run_trial(sim, robot, sim.terrain, StandPolicy(robot), EpisodeConfig(duration=3.0), seed=0)
     finally:
         sim.close()
-    assert not result.success and result.fall_time is not None and result.nwt < 1.0
-    assert result.nwt == pytest.approx(result.fall_time / 3.0)
+    assert not result.success and result.fall_time is not None and result.upright_fraction < 1.0
+    assert result.upright_fraction == pytest.approx(result.fall_time / 3.0) and result.nwt == 0.0
     assert "ground" in result.fall_reason
 
 

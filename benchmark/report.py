@@ -23,9 +23,12 @@ FORMATS = ("md", "html", "csv")
 METRICS = {  # column in the store -> (heading, aggregation, digits)
     "nwt": ("NWT", "mean", 3),
     "success": ("success rate", "mean", 2),
+    "upright_fraction": ("upright", "mean", 2),
     "mean_vx": ("vx (m/s)", "mean", 2),
     "distance_m": ("distance (m)", "mean", 2),
     "abs_drift_m": ("|drift| (m)", "mean", 2),
+    "abs_heading_change_rad": ("|heading change| (rad)", "mean", 2),
+    "knn_agreement": ("kNN agreement", "mean", 2),
     "input_tokens": ("input tokens", "mean", 0),
     "output_tokens": ("output tokens", "mean", 0),
     "gpt4_input_tokens": ("GPT-4 input tokens", "mean", 0),
@@ -51,15 +54,47 @@ def _with_axis_text(frame: pd.DataFrame, axes: list[str]) -> pd.DataFrame:
     return frame.assign(**{a: frame[a].map(lambda v: "-" if pd.isna(v) else str(v)) for a in axes})
 
 
-def summary_table(frame: pd.DataFrame) -> pd.DataFrame:
-    """One row per cell: trial count and the mean (or sum) of every metric present."""
+INTERVALS = ("success",)  # rates shown with a Wilson 95% interval; other means with +- one std
+SPREAD = ("nwt", "mean_vx", "distance_m")
+
+
+def wilson(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    """The Wilson score interval of a rate: at 5 trials one fall moves the rate by 0.2."""
+    if n == 0:
+        return 0.0, 1.0
+    p = successes / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def _with_spread(values: pd.Series, key: str, digits: int) -> str:
+    values = values.dropna().astype(float)
+    if values.empty:
+        return "-"
+    mean = values.mean()
+    if key in INTERVALS:
+        low, high = wilson(int(values.sum()), len(values))
+        return f"{mean:.{digits}f} [{low:.2f}, {high:.2f}]"
+    return f"{mean:.{digits}f} ± {values.std(ddof=1) if len(values) > 1 else 0.0:.{digits}f}"
+
+
+def summary_table(frame: pd.DataFrame, spread: bool = True) -> pd.DataFrame:
+    """One row per cell: trial count and the mean (or sum) of every metric present; with `spread`,
+    rates carry their 95% Wilson interval and NWT, speed and distance their standard deviation."""
     frame = frame.assign(abs_drift_m=frame["lateral_drift_m"].abs())
+    if "heading_change_rad" in frame:
+        frame = frame.assign(abs_heading_change_rad=frame["heading_change_rad"].abs())
     axes = axes_of(frame)
     present = {k: v for k, v in METRICS.items() if k in frame and frame[k].notna().any()}
     grouped = _with_axis_text(frame, axes).groupby(axes, sort=False)
     table = grouped.agg(trials=("trial_id", "count"), **{k: (k, AGGREGATIONS[agg]) for k, (_, agg, _) in present.items()})
     for key, (_, _, digits) in present.items():
         table[key] = table[key].round(digits)
+    if spread:
+        for key in [k for k in (*INTERVALS, *SPREAD) if k in present]:
+            digits = present[key][2]
+            table[key] = grouped[key].apply(lambda v, k=key, d=digits: _with_spread(v, k, d))
     return table.rename(columns={k: heading for k, (heading, _, _) in present.items()}).reset_index()
 
 
@@ -191,8 +226,9 @@ def write_reports(frame: pd.DataFrame, out: Path, fmt: str = "md") -> list[Path]
     for name, group in frame.groupby("experiment", sort=False):
         group = group.sort_values(["cell_index", "seed"]).reset_index(drop=True)
         table, engines = summary_table(group), engine_table(group)
+        numbers = summary_table(group, spread=False)
         title, commands = _title_and_command(str(name), group)
-        bars = bar_figure(group, table, out / "figures" / f"{name}_bars.png", title)
+        bars = bar_figure(group, numbers, out / "figures" / f"{name}_bars.png", title)
         traj = trajectory_figure(group, out / "figures" / f"{name}_trajectories.png")
         figures = [p for p in (bars, traj) if p is not None]
         path = out / f"{name}.{fmt}"
@@ -210,6 +246,14 @@ def write_reports(frame: pd.DataFrame, out: Path, fmt: str = "md") -> list[Path]
     return written
 
 
+def _walking_text(group: pd.DataFrame) -> str:
+    if "walk_window_s" not in group or group["walk_window_s"].isna().all():
+        return "criteria not recorded: a store made before the walking metrics"
+    row = group.dropna(subset=["walk_window_s"]).iloc[0]
+    return (f"walking: progress along the command over every {row['walk_window_s']:g} s window at least "
+            f"{row['walk_min_speed']:g} m/s; success distance at least {row['walk_min_distance_m']:g} m")
+
+
 def _markdown_report(name: str, title: str, commands: list[str], group: pd.DataFrame, table: pd.DataFrame,
                      engines: pd.DataFrame | None, figures: list[Path]) -> str:
     versions = json.loads(group["versions"].dropna().iloc[0]) if "versions" in group and group["versions"].notna().any() else {}
@@ -217,7 +261,11 @@ def _markdown_report(name: str, title: str, commands: list[str], group: pd.DataF
     lines = [f"# {title}", "",
              f"Experiment `{name}`: {len(group)} trials in {group['cell_id'].nunique()} cells, "
              f"seeds {sorted(group['seed'].unique().tolist())}. NWT and success cover the evaluated phase only "
-             "(for the LLM, from its takeover to the end)."]
+             "(for the LLM, from its takeover to the end) and need walking: NWT is the fraction of the phase "
+             "before the robot falls or stops walking, success finishing it upright, walking and far enough "
+             f"({_walking_text(group)}); `upright` is the fraction before a fall, which standing wins. "
+             "Success rates show a Wilson 95% interval, NWT, speed and distance the mean ± one standard "
+             "deviation over trials."]
     if commands:
         lines += ["", "Made with:", "", *[f"    {c}" for c in commands]]
     lines += ["", to_markdown(table)]

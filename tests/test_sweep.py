@@ -145,9 +145,10 @@ def test_report_writes_markdown_html_csv_and_png_figures(tmp_path, uninterrupted
     written = write_reports(uninterrupted, tmp_path, "md")
     md = (tmp_path / "tiny.md").read_text()
     table = [line for line in md.splitlines() if line.startswith("|")]
-    assert table[0].startswith("| terrain | trials | NWT | success rate")
+    assert table[0].startswith("| terrain | trials | NWT | success rate | upright")
     assert [line.split(" | ")[0] for line in table[2:]] == ["| flat", "| rough"]  # grid order
-    assert all(" | 2 | 1 | 1 |" in line for line in table[2:])
+    # standing is not walking: NWT 0, success 0 with its 95% interval at 2 trials, upright throughout
+    assert all(" | 2 | 0.000 ± 0.000 | 0.00 [0.00, 0.66] | 1 |" in line for line in table[2:]), table
     for name in ("tiny_bars.png", "tiny_trajectories.png"):
         png = tmp_path / "figures" / name
         assert png in written and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 5000
@@ -181,4 +182,5 @@ def test_llm_cells_sweep_with_the_embedded_model_and_report_tokens(tmp_path, mon
     write_reports(frame, tmp_path / "reports")
     md = (tmp_path / "reports" / "llm_tiny.md").read_text()
     assert "| policy | encoding | trials | NWT |" in md and "GPT-4 input tokens" in md and "| rl | - | 1 |" in md
+    assert "kNN agreement" in md and "Wilson 95% interval" in md
     assert (tmp_path / "reports" / "figures" / "llm_tiny_trajectories.png").is_file()

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -25,9 +24,11 @@ class _Collect(TrialHooks):
 
     def __init__(self) -> None:
         self.results: list[TrialResult] = []
+        self.on_end = lambda result: None
 
     def end(self, seed, result) -> None:
         self.results.append(result)
+        self.on_end(result)
 
 
 class _QueryBar(TrialHooks):
@@ -48,35 +49,41 @@ class _QueryBar(TrialHooks):
 
 
 class _Record(TrialHooks):
-    """One Rerun recording per trial (into a folder), or every trial in one file."""
+    """One Rerun recording per trial, into a folder (`--record-dir`) or merged into one file at the end."""
 
-    def __init__(self, cell: CellSpec, path: str | None, folder: str | None) -> None:
-        self.cell, self.path, self.folder = cell, path, folder
+    def __init__(self, cell: CellSpec, folder: Path) -> None:
+        self.cell, self.folder, self.written = cell, folder, []
 
     def start(self, seed, sim, policy, episode):
         from benchmark.recorder import Recorder
 
         c = self.cell
         name = f"{c.sim}-{Path(c.robot).name}-{c.terrain}-{c.policy}-seed{seed}"
-        path = Path(self.folder) / f"{name}.rrd" if self.folder else Path(self.path)
-        self.recorder = Recorder(path, sim.robot, sim.terrain, sim, policy, name, append=not self.folder)
+        self.recorder = Recorder(self.folder / f"{name}.rrd", sim.robot, sim.terrain, sim, policy, name)
         return self.recorder.on_step
 
     def end(self, seed, result) -> None:
-        self.recorder.write(result)
+        self.written.append(self.recorder.write(result))
 
 
 def cmd_run(args, values: dict, runtime: Runtime) -> int:
+    import tempfile
+
+    from benchmark.recorder import merge_recordings, rerun_command
+
     cell = make_cell(values, where="bench run")
-    if args.record:
-        Path(args.record).unlink(missing_ok=True)  # a run writes its trials into one fresh file
     collect = _Collect()
     hooks = [collect, _QueryBar()]
+    parts = tempfile.TemporaryDirectory(prefix="promptwalk-rec-") if args.record else None
+    record = None
     if args.record or args.record_dir:
-        hooks.append(_Record(cell, args.record, args.record_dir))
+        if args.record:
+            rerun_command()  # fail before running, not after
+        record = _Record(cell, Path(args.record_dir) if args.record_dir else Path(parts.name))
+        hooks.append(record)
     seeds = range(args.seed, args.seed + args.trials)
     trials_bar = tqdm(total=args.trials, desc=cell.label(), unit="trial", file=sys.stderr, disable=None)
-    hooks.append(type("_Tick", (TrialHooks,), {"end": lambda self, seed, result: trials_bar.update()})())
+    collect.on_end = lambda result: trials_bar.update()
     error, resources = None, Resources(runtime)
     try:
         run_cell(cell, seeds, resources, hooks=hooks)
@@ -95,7 +102,9 @@ def cmd_run(args, values: dict, runtime: Runtime) -> int:
         print(json.dumps(result))
     else:
         print_run_table(cell, result)
-    if args.record:
+    if args.record and trials:
+        merge_recordings(record.written, Path(args.record))
+        parts.cleanup()
         print(f"recording: {args.record} ({len(trials)} trial(s), one recording per seed); open with "
               f"'bench view {args.record}'", file=sys.stderr)
     if error is not None:
@@ -221,14 +230,40 @@ def cmd_report(args) -> int:
 def cmd_view(args) -> int:
     if not Path(args.path).is_file():
         raise CliError(f"recording '{args.path}' not found")
-    viewer = shutil.which("rerun")
-    if viewer is None:
-        raise CliError("the 'rerun' viewer is not on PATH; it comes with rerun-sdk (pip install -e .)")
+    from benchmark.recorder import rerun_command
+
+    try:
+        viewer = rerun_command()
+    except FileNotFoundError as err:
+        raise CliError(str(err)) from None
     if args.web:
-        print(f"serving {args.path} in Rerun's web viewer: open http://localhost:{args.port} (Ctrl-C stops)",
+        grpc = args.port + 1
+        print(f"serving {args.path} in Rerun's web viewer: open http://localhost:{args.port}/?url=rerun%2Bhttp"
+              f"%3A%2F%2Flocalhost%3A{grpc}%2Fproxy (forward ports {args.port} and {grpc}; Ctrl-C stops)",
               file=sys.stderr, flush=True)
-        return subprocess.call([viewer, "--serve-web", "--web-viewer-port", str(args.port), args.path])
-    return subprocess.call([viewer, args.path])
+        return _run_child([viewer, "--serve-web", "--web-viewer-port", str(args.port), "--port", str(grpc),
+                           args.path])
+    return _run_child([viewer, args.path])
+
+
+def _run_child(command: list[str]) -> int:
+    """Run the viewer; Ctrl-C or SIGTERM ends it too, so no viewer outlives `bench view`."""
+    import signal
+
+    def stop(signum, frame):
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, stop)
+    child = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        return child.wait()
+    except KeyboardInterrupt:
+        child.terminate()
+        try:
+            child.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            child.kill()
+        return 130
 
 
 def cmd_train(values: dict, rewards: dict) -> int:

@@ -9,6 +9,9 @@ URDF; body poses come from the engine, so the recorder works the same for every 
 
 from __future__ import annotations
 
+import shutil
+import subprocess
+import sys
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from functools import cache
@@ -89,16 +92,10 @@ def _rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
 
 
 class Recorder:
-    """Collects one trial through the runner's `on_step` hook and writes it to an .rrd file.
+    """Collects one trial through the runner's `on_step` hook and writes it to an .rrd file."""
 
-    With `append`, the trial is added to the file as one more recording (its id is the trial's
-    name): an .rrd file is a sequence of streams, and the viewer opens every recording in it.
-    """
-
-    def __init__(self, path: Path, robot: Robot, terrain: Terrain, sim, policy=None, name: str = "",
-                 append: bool = False) -> None:
+    def __init__(self, path: Path, robot: Robot, terrain: Terrain, sim, policy=None, name: str = "") -> None:
         self.path, self.robot, self.terrain, self.sim, self.policy = Path(path), robot, terrain, sim, policy
-        self.append = append
         self.name = name or self.path.stem
         self.times: list[float] = []
         self.body_pos: list[np.ndarray] = []
@@ -132,9 +129,7 @@ class Recorder:
 
         rec = rr.RecordingStream("promptwalk", recording_id=self.name)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        appending = self.append and self.path.is_file()
-        target = self.path.with_name(f".{self.path.name}.part") if appending else self.path
-        rec.save(target, default_blueprint=self._blueprint(rrb))
+        rec.save(self.path, default_blueprint=self._blueprint(rrb))
         self._log_static(rec, rr)
         if self.times:
             self._log_series(rec, rr)
@@ -152,11 +147,8 @@ class Recorder:
             rec.log("events", rr.TextLog(f"trial done: NWT {result.nwt:.3f}, success {result.success}, "
                                          f"distance {result.distance_m:.2f} m"))
         rec.disconnect()  # flushes the file
-        if appending:
-            with self.path.open("ab") as whole:
-                whole.write(target.read_bytes())
-            target.unlink()
         return self.path
+
 
     def _blueprint(self, rrb):
         """3D view following the base, beside joint, torque and base-velocity plots and the text logs."""
@@ -243,3 +235,22 @@ class Recorder:
             rec.log(entity, rr.SeriesLines(names=list(names)), static=True)
             rec.send_columns(entity, indexes=[times],
                              columns=rr.Scalars.columns(scalars=values.ravel()).partition([values.shape[1]] * n))
+
+
+def rerun_command() -> str:
+    """The `rerun` executable installed with rerun-sdk (beside this Python, or on PATH)."""
+    beside = Path(sys.executable).parent / "rerun"
+    found = str(beside) if beside.is_file() else shutil.which("rerun")
+    if found is None:
+        raise FileNotFoundError("the 'rerun' command of rerun-sdk is not installed; pip install -e .")
+    return found
+
+
+def merge_recordings(parts: list[Path], path: Path) -> Path:
+    """One .rrd holding every part as its own recording (`rerun rrd merge` keeps recording ids apart)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    done = subprocess.run([rerun_command(), "rrd", "merge", *map(str, parts), "-o", str(path)],
+                          capture_output=True, text=True)
+    if done.returncode != 0:
+        raise RuntimeError(f"merging recordings into {path} failed: {done.stderr.strip().splitlines()[-1:]}")
+    return path

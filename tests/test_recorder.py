@@ -90,3 +90,37 @@ def test_cli_records_one_file_per_trial(tmp_path):
     names = sorted(p.name for p in tmp_path.glob("*.rrd"))
     assert names == ["mujoco-a1-flat-stand-seed0.rrd", "mujoco-a1-flat-stand-seed1.rrd"]
     assert len(_column(read_back(tmp_path / names[1])["/joints/torque"], "Scalars:scalars")) == 10
+
+
+def test_the_readme_recording_recipe_writes_one_file_and_serves_it_on_loopback(tmp_path):
+    """`bench run --record walk.rrd && bench view walk.rrd` as the README says, then the web viewer."""
+    import socket
+    import time
+    import urllib.request
+
+    from rerun.chunk import RrdReader
+
+    path = tmp_path / "walk.rrd"
+    out = subprocess.run([sys.executable, "-m", "benchmark.cli", "run", "--policy", "rl", "--trials", "2",
+                          "--duration", "1", "--record", str(path)], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    ids = [e.recording_id for e in RrdReader(path).recordings()]
+    assert ids == ["mujoco-a1-flat-rl-seed0", "mujoco-a1-flat-rl-seed1"]
+    assert not list(tmp_path.glob("walk-seed*.rrd"))
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    view = subprocess.Popen([sys.executable, "-m", "benchmark.cli", "view", str(path), "--web", "--port", str(port)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        page, deadline = "", time.monotonic() + 60
+        while time.monotonic() < deadline and "<html" not in page:
+            try:
+                page = urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=2).read().decode()
+            except OSError:
+                time.sleep(0.5)
+        assert "<html" in page and "Rerun" in page
+    finally:
+        view.terminate()
+        _, err = view.communicate(timeout=30)
+    assert f"http://localhost:{port}/" in err

@@ -22,6 +22,7 @@ from benchmark.cell import CELL_FIELDS, CellSpec, Runtime, setting_fields
 from benchmark.commands import CliError
 from benchmark.policies import POLICIES
 from benchmark.settings import choices_of, hints, kind_of
+from benchmark.llm.latency import MODES as LATENCY_MODES
 from benchmark.train import TrainConfig
 from robots import UnknownNameError
 from sims import ENGINES, load_entry_point
@@ -165,12 +166,14 @@ def build_parser() -> argparse.ArgumentParser:
     prompt.add_argument("--json", action="store_true", help="print one JSON object")
     add_fields(prompt, Runtime, ["threads"])
 
-    lat = sub.add_parser("latency", help="LLM query latency by history length, sliding vs block-cut history",
+    lat = sub.add_parser("latency", help="LLM query latency and drift by history length and history mode",
                          description=_doc("benchmark.llm.latency"), formatter_class=fmt)
     lat.add_argument("--llm", default="embedded", help="model spec, as for bench run (default embedded)")
     lat.add_argument("--llm-url", default=None, help="base URL for openai:MODEL")
     lat.add_argument("--histories", nargs="+", type=int, default=[10, 50], help="history lengths (default 10 50)")
-    lat.add_argument("--modes", nargs="+", default=["sliding", "block"], choices=("sliding", "block"))
+    lat.add_argument("--modes", nargs="+", default=list(LATENCY_MODES), choices=LATENCY_MODES,
+                     help=f"history modes (default {' '.join(LATENCY_MODES)}; shifted is approximate)")
+    lat.add_argument("--no-drift", action="store_true", help="skip the cold recompute of every prompt")
     lat.add_argument("--queries", type=_number(int, True), default=8, help="LLM queries per cell (default 8)")
     lat.add_argument("--json", action="store_true", help="print one JSON object")
     add_fields(lat, Runtime, ["threads"])

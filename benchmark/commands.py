@@ -10,6 +10,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from benchmark.cell import CellSpec, Resources, Runtime, TrialHooks, make_cell, run_cell
+from benchmark.interrupt import Interrupted, Interruption
 from benchmark.llm.controller import CONTROL_DT
 from benchmark.runner import TrialResult, summarize
 from benchmark.settings import SettingError
@@ -32,16 +33,38 @@ class _Collect(TrialHooks):
 
 
 class _QueryBar(TrialHooks):
-    """A progress bar over the LLM queries of each trial."""
+    """Per trial, a bar over the LLM queries with the latest latency and an ETA; when stderr is not a
+    terminal (nohup, CI, a pipe), a progress line every `every_s` seconds instead."""
+
+    def __init__(self, every_s: float = 30.0) -> None:
+        self.every_s = every_s
 
     def start(self, seed, sim, policy, episode):
         queries = getattr(policy, "queries", None)
         if queries is None:
             return None
+        import time
+
         total = int(round((episode.duration - episode.eval_start) / sim.physics.control_dt))
-        self.bar = tqdm(total=total, desc=f"seed {seed}: LLM queries", unit="query", file=sys.stderr, disable=None,
-                        leave=False)
-        return lambda loop: self.bar.update(len(policy.queries) - self.bar.n)
+        bar = self.bar = tqdm(total=total, desc=f"seed {seed}: LLM queries", unit="query", file=sys.stderr,
+                              disable=None, leave=False)
+        started, last_line = time.monotonic(), [time.monotonic()]
+
+        def update(loop) -> None:
+            done = len(policy.queries)
+            if done == bar.n:
+                return
+            latency = policy.queries[-1].reply.latency_s
+            bar.set_postfix_str(f"{latency:.2f} s/query", refresh=False)
+            bar.update(done - bar.n)
+            now = time.monotonic()
+            if bar.disable and (now - last_line[0] >= self.every_s or done == total):
+                last_line[0] = now
+                rate = (now - started) / done
+                print(f"bench: seed {seed}: {done}/{total} LLM queries, last {latency:.2f} s, "
+                      f"ETA {rate * (total - done):.0f} s for this trial", file=sys.stderr, flush=True)
+
+        return update
 
     def end(self, seed, result) -> None:
         if getattr(self, "bar", None) is not None:
@@ -84,11 +107,15 @@ def cmd_run(args, values: dict, runtime: Runtime) -> int:
     seeds = range(args.seed, args.seed + args.trials)
     trials_bar = tqdm(total=args.trials, desc=cell.label(), unit="trial", file=sys.stderr, disable=None)
     collect.on_end = lambda result: trials_bar.update()
-    error, resources = None, Resources(runtime)
+    error, interrupted, resources = None, False, Resources(runtime)
     try:
-        run_cell(cell, seeds, resources, hooks=hooks)
+        with Interruption(what="trial in flight") as stop:
+            hooks.append(_StopBetweenTrials(stop))
+            run_cell(cell, seeds, resources, hooks=hooks)
     except (OSError, RuntimeError) as err:  # keep what finished: report it, then the error
         error = err
+    except (Interrupted, KeyboardInterrupt):
+        interrupted = True
     finally:
         trials_bar.close()
         resources.close()
@@ -96,6 +123,9 @@ def cmd_run(args, values: dict, runtime: Runtime) -> int:
     if error is not None and not trials:
         print(f"bench: error: {error}", file=sys.stderr)
         return 1
+    if interrupted and not trials:
+        print("bench: interrupted before any trial finished", file=sys.stderr)
+        return 130
     result = {**cell.params(), "eval_start": cell.eval_start, "seed": args.seed,
               "trials": [t.to_dict() for t in trials], **summarize(trials)}
     if args.json:
@@ -110,7 +140,21 @@ def cmd_run(args, values: dict, runtime: Runtime) -> int:
     if error is not None:
         print(f"bench: error: {error} ({len(trials)} finished trial(s) reported above)", file=sys.stderr)
         return 1
+    if interrupted:
+        print(f"bench: interrupted: {len(trials)} finished trial(s) reported above", file=sys.stderr)
+        return 130
     return 0
+
+
+class _StopBetweenTrials(TrialHooks):
+    """After the first Ctrl-C, no new trial starts."""
+
+    def __init__(self, stop: Interruption) -> None:
+        self.stop = stop
+
+    def start(self, seed, sim, policy, episode):
+        if self.stop.requested:
+            raise Interrupted
 
 
 def print_run_table(cell: CellSpec, result: dict) -> None:
@@ -190,9 +234,9 @@ def cmd_sweep(args, overrides_text: list[str], only_text: list[str]) -> int:
         print(f"bench: error: {err} ({len(store.done_ids())} trial(s) stored in {store.root}; "
               "run the same command again to resume)", file=sys.stderr)
         return 1
-    except KeyboardInterrupt:
-        print(f"bench: interrupted ({len(store.done_ids())} trial(s) stored in {store.root}; "
-              "run the same command again to resume)", file=sys.stderr)
+    except Interrupted:
+        print(f"bench: interrupted: {len(store.done_ids())} trial(s) stored in {store.root}; "
+              "run the same command again to resume", file=sys.stderr)
         return 130
     print(f"{experiment.name}: {outcome.ran} trial(s) run, {outcome.skipped} already stored, "
           f"{outcome.total} in the grid; {outcome.wall_s:.1f} s with {args.workers} {args.executor} worker(s); "
@@ -247,22 +291,28 @@ def cmd_view(args) -> int:
 
 
 def _run_child(command: list[str]) -> int:
-    """Run the viewer; Ctrl-C or SIGTERM ends it too, so no viewer outlives `bench view`."""
+    """Run the viewer in a process group of its own (rerun-sdk's `rerun` is a wrapper that starts the real
+    binary); Ctrl-C or SIGTERM ends the whole group, so no viewer outlives `bench view`."""
+    import os
     import signal
 
     def stop(signum, frame):
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGTERM, stop)
-    child = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    child = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     try:
         return child.wait()
     except KeyboardInterrupt:
-        child.terminate()
-        try:
-            child.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            child.kill()
+        for sig in (signal.SIGTERM, signal.SIGKILL):
+            try:
+                os.killpg(child.pid, sig)
+                child.wait(timeout=5)
+                break
+            except subprocess.TimeoutExpired:
+                continue
+            except ProcessLookupError:
+                break
         return 130
 
 
@@ -280,7 +330,15 @@ def cmd_train(values: dict, rewards: dict) -> int:
         raise CliError(f"--rough-share must be between 0 and 1, got {config.rough_share}")
     if config.init_from and not Path(config.init_from).is_file():
         raise CliError(f"--init-from '{config.init_from}' not found; give a policy.npz written by bench train")
-    path = train(config)
+    with Interruption(grace_s=30.0, what="training (it saves and evaluates the policy so far)") as stop:
+        try:
+            path = train(config, stop=lambda: stop.requested)
+        except KeyboardInterrupt:
+            print(f"bench: interrupted: the last periodic policy is in {config.out_dir}", file=sys.stderr)
+            return 130
+    if stop.requested:
+        print(f"bench: interrupted: policy so far written to {path}", file=sys.stderr)
+        return 130
     print(f"policy written to {path}; log in {config.out_dir / 'train_log.csv'}; evaluate it with "
           f"'bench run --policy rl --robot {config.robot} --policy-file {path}'")
     return 0
@@ -342,16 +400,22 @@ def cmd_latency(args, threads: int | None) -> int:
     from benchmark.llm.models import check_model_spec
 
     check_model_spec(args.llm)
-    rows = measure(args.llm, args.histories, args.modes, args.queries, threads, args.llm_url)
+    rows = measure(args.llm, args.histories, args.modes, args.queries, threads, args.llm_url, drift=not args.no_drift)
     if args.json:
         print(json.dumps({"model": args.llm, "rows": rows}))
         return 0
-    print(f"{args.llm}: query latency, {args.queries} queries per cell, cache off")
-    print(f"{'history':>7} {'mode':>8} {'tokens':>7} {'first s':>8} {'mean s':>7} {'p95 s':>6} {'after 1st s':>11}")
+    print(f"{args.llm}: query latency, {args.queries} queries per cell, cache off; drift: replies against a cold "
+          "recompute of the same prompt")
+    print(f"{'history':>7} {'mode':>12} {'tokens':>7} {'first s':>8} {'mean s':>7} {'p95 s':>6} {'after 1st s':>11} "
+          f"{'same as cold':>12} {'|da|':>6} {'outcome':>8}")
     for r in rows:
         after = f"{r['latency_after_first_s']:.2f}" if r["latency_after_first_s"] is not None else "-"
-        print(f"{r['history']:>7} {r['mode']:>8} {r['prompt_tokens']:>7.0f} {r['latency_first_s']:>8.2f} "
-              f"{r['latency_mean_s']:>7.2f} {r['latency_p95_s']:>6.2f} {after:>11}")
+        same = f"{r['identical_to_cold']:.2f}" if r.get("identical_to_cold") is not None else "-"
+        diff = f"{r['action_diff_vs_cold']:.3f}" if r.get("action_diff_vs_cold") is not None else "-"
+        changed = {True: "changed", False: "same"}.get(r.get("outcome_changed"), "-")
+        mode = r["mode"] + (" (approx)" if r["approximate"] else "")
+        print(f"{r['history']:>7} {mode:>12} {r['prompt_tokens']:>7.0f} {r['latency_first_s']:>8.2f} "
+              f"{r['latency_mean_s']:>7.2f} {r['latency_p95_s']:>6.2f} {after:>11} {same:>12} {diff:>6} {changed:>8}")
     return 0
 
 

@@ -32,6 +32,7 @@ from tqdm import tqdm
 
 from benchmark.cell import Resources, Runtime, TrialHooks, run_cell
 from benchmark.experiment import Trial
+from benchmark.interrupt import Interrupted, Interruption, ignore_sigint
 from benchmark.store import ResultStore
 from robots import load_robot
 from sims import ENGINES
@@ -95,40 +96,64 @@ def run_in_worker(trial: Trial, runtime: Runtime) -> dict:
                          f"{type(err).__name__}: {err}") from None
 
 
-def _quiet_worker() -> None:
-    """Worker processes answer through pickles: silence engines that print banners on stdout."""
+def _worker_init() -> None:
+    """Worker processes answer through pickles: silence engines that print banners on stdout, and leave
+    Ctrl-C to the driver (which ends the workers itself)."""
+    ignore_sigint()
     devnull = os.open(os.devnull, os.O_WRONLY)
     os.dup2(devnull, 1)
     os.close(devnull)
 
 
-def _serial(todo: list[Trial], runtime: Runtime) -> Iterator[dict]:
-    """In this process; its engines and LLM are closed when the sweep ends."""
+def _serial(todo: list[Trial], runtime: Runtime, stop: Interruption) -> Iterator[dict]:
+    """In this process; after the first Ctrl-C the trial in flight gets the grace period (an alarm
+    interrupts it after that). Engines and LLM are closed when the sweep ends."""
     global _WORKER
     try:
         for trial in todo:
+            if stop.requested:
+                raise Interrupted
             yield run_in_worker(trial, runtime)
+        if stop.requested:
+            raise Interrupted
     finally:
         if _WORKER is not None:
             _WORKER.close()
             _WORKER = None
 
 
-def _processes(todo: list[Trial], runtime: Runtime, workers: int) -> Iterator[dict]:
+def _processes(todo: list[Trial], runtime: Runtime, workers: int, stop: Interruption) -> Iterator[dict]:
+    """At most `workers` trials in flight, so a stop or a kill loses no more; after the first Ctrl-C no
+    trial starts, those in flight get the grace period, then the workers are ended."""
     # spawn, not fork: torch, warp and llama.cpp threads do not survive a fork
     pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                               initializer=_quiet_worker)
-    try:
-        pending = {pool.submit(run_in_worker, trial, runtime) for trial in todo}
-        while pending:
-            done, pending = wait(pending, return_when=FIRST_COMPLETED)
-            for future in done:
-                yield future.result()
-    finally:
+                               initializer=_worker_init)
+
+    def end_workers() -> None:
+        for process in list(getattr(pool, "_processes", {}).values()):
+            process.kill()
         pool.shutdown(wait=False, cancel_futures=True)
 
+    stop.on_second = end_workers
+    queue, pending, deadline = list(todo), set(), None
+    try:
+        while queue or pending:
+            if stop.requested and deadline is None:
+                queue, deadline = [], time.monotonic() + stop.grace_s
+            if deadline is not None and time.monotonic() > deadline:
+                break
+            while queue and len(pending) < workers:
+                pending.add(pool.submit(run_in_worker, queue.pop(0), runtime))
+            done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+            for future in done:
+                yield future.result()
+        if stop.requested:
+            raise Interrupted
+    finally:
+        end_workers()
 
-def _ray(todo: list[Trial], runtime: Runtime, workers: int, address: str | None) -> Iterator[dict]:
+
+def _ray(todo: list[Trial], runtime: Runtime, workers: int, address: str | None, stop: Interruption) -> Iterator[dict]:
     try:
         import ray
     except ImportError:
@@ -137,16 +162,23 @@ def _ray(todo: list[Trial], runtime: Runtime, workers: int, address: str | None)
         local = {"num_cpus": workers} if address is None else {}
         ray.init(address=address, include_dashboard=False, log_to_driver=False, logging_level="ERROR", **local)
     task = ray.remote(num_cpus=1, max_retries=0)(run_in_worker)
-    queue, pending = list(todo), []
+    queue, pending, deadline = list(todo), [], None
     try:
         while queue or pending:
+            if stop.requested and deadline is None:
+                queue, deadline = [], time.monotonic() + stop.grace_s
+            if deadline is not None and time.monotonic() > deadline:
+                break
             while queue and len(pending) < workers:  # at most `workers` in flight: a kill loses no more
                 pending.append(task.remote(queue.pop(0), runtime))
-            done, pending = ray.wait(pending, num_returns=1)
-            try:
-                yield ray.get(done[0])
-            except ray.exceptions.RayTaskError as err:
-                raise err.as_instanceof_cause() from None
+            done, pending = ray.wait(pending, num_returns=1, timeout=0.2)
+            for ref in done:
+                try:
+                    yield ray.get(ref)
+                except ray.exceptions.RayTaskError as err:
+                    raise err.as_instanceof_cause() from None
+        if stop.requested:
+            raise Interrupted
     finally:
         for ref in pending:
             ray.cancel(ref, force=True)
@@ -194,26 +226,32 @@ def run_sweep(trials: list[Trial], store: ResultStore, workers: int = 1, executo
                       requests_per_minute=None if requests_per_minute is None else requests_per_minute / workers)
     meta = run_metadata(command)
     start = time.perf_counter()
-    if not todo:
-        rows: Iterator[dict] = iter(())
-    elif executor == "ray":
-        rows = _ray(todo, runtime, workers, address)
-    elif workers == 1:
-        rows = _serial(todo, runtime)
-    else:
-        rows = _processes(todo, runtime, min(workers, len(todo)))
     ran = 0
     bar = tqdm(total=len(trials), initial=len(trials) - len(todo), desc=trials[0].experiment if trials else "sweep",
                unit="trial", file=sys.stderr, disable=None)
-    try:
-        for row in rows:
-            store.write({**row, **meta})
-            ran += 1
-            bar.update()
-    finally:
-        bar.close()
-        if hasattr(rows, "close"):
-            rows.close()
-    if ran:
-        store.snapshot()
+    with Interruption(alarm=executor == "local" and workers == 1) as stop:
+        if not todo:
+            rows: Iterator[dict] = iter(())
+        elif executor == "ray":
+            rows = _ray(todo, runtime, workers, address, stop)
+        elif workers == 1:
+            rows = _serial(todo, runtime, stop)
+        else:
+            rows = _processes(todo, runtime, min(workers, len(todo)), stop)
+        try:
+            for row in rows:
+                store.write({**row, **meta})
+                ran += 1
+                bar.update()
+                if bar.disable:
+                    print(f"bench: {bar.n}/{len(trials)} trials ({ran} run now, "
+                          f"{time.perf_counter() - start:.0f} s)", file=sys.stderr, flush=True)
+        except KeyboardInterrupt:  # a second Ctrl-C, or the grace period ran out in this process
+            raise Interrupted from None
+        finally:
+            bar.close()
+            if hasattr(rows, "close"):
+                rows.close()
+            if ran:
+                store.snapshot()
     return SweepOutcome(len(trials), len(trials) - len(todo), ran, time.perf_counter() - start)

@@ -17,6 +17,7 @@ import json
 import platform
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 
@@ -108,8 +109,9 @@ def load_actor_into(model, actor: MlpActor) -> None:
             layer.bias.copy_(torch.as_tensor(b))
 
 
-def train(config: TrainConfig) -> Path:
-    """Train, evaluating every `eval_every` steps and once at the end; returns the policy.npz path."""
+def train(config: TrainConfig, stop: Callable[[], bool] = lambda: False) -> Path:
+    """Train, evaluating every `eval_every` steps and once at the end; returns the policy.npz path.
+    Training ends early (saved and evaluated as usual) once `stop()` is true."""
     import torch
     import torch.nn as nn
     from stable_baselines3 import PPO
@@ -173,7 +175,7 @@ def train(config: TrainConfig) -> Path:
             if self.num_timesteps >= self.next_eval:
                 self.next_eval += eval_every
                 self._evaluate()
-            return True
+            return not stop()
 
         def _evaluate(self) -> None:
             self.evaluated_at = self.num_timesteps

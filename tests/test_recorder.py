@@ -124,3 +124,6 @@ def test_the_readme_recording_recipe_writes_one_file_and_serves_it_on_loopback(t
         view.terminate()
         _, err = view.communicate(timeout=30)
     assert f"http://localhost:{port}/" in err
+    time.sleep(1)
+    leftovers = subprocess.run(["pgrep", "-f", f"web-viewer-port {port}"], capture_output=True, text=True).stdout
+    assert leftovers == "", "the viewer outlived bench view"

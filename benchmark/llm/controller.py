@@ -30,7 +30,9 @@ from sims.base import PhysicsConfig, RobotState
 if TYPE_CHECKING:
     from benchmark.cell import CellSpec, Resources, Runtime
 
-HISTORY_MODES = ("sliding", "block")
+HISTORY_MODES = ("auto", "sliding", "block", "shifted")
+APPROXIMATE_MODES = ("shifted",)
+SHIFT_CHUNK = 64  # tokens: llama.cpp's n_cache_reuse, the smallest cached chunk it moves instead of recomputing
 CONTROL_DT = PhysicsConfig().control_dt  # s, the 10 Hz control period every engine runs
 
 
@@ -44,8 +46,12 @@ class LLMSettings:
                                     "OPENAI_API_KEY and is never printed", flag="--llm-url")
     api: str = setting("completions", "endpoint kind", choices=("completions", "chat"), flag="--llm-api")
     history: int = setting(50, "observation/action pairs in the prompt", minimum=0)
-    history_mode: str = setting("sliding", "sliding window, or grow-then-cut-in-blocks (keeps llama.cpp's "
-                                           "prompt cache warm)", choices=HISTORY_MODES)
+    history_mode: str = setting("auto", "sliding: exact sliding window (the paper's; re-reads the whole prompt "
+                                        "every query); block: exact, grows then cuts 10 pairs at once (prefix cache "
+                                        "stays valid between cuts); shifted: sliding window with llama.cpp KV-cache "
+                                        "shifting, APPROXIMATE (cached keys/values keep the dropped pair in "
+                                        "context), embedded models only; auto: shifted for embedded models, "
+                                        "sliding for the others", choices=HISTORY_MODES)
     prompt_parts: tuple[str, ...] = setting(PARTS, "description parts", choices=PARTS)
     encoding: str = setting(DEFAULT_ENCODING, "numbers: " + "; ".join(f"{k} {e.title}" for k, e in ENCODINGS.items()),
                             choices=tuple(ENCODINGS))
@@ -72,8 +78,20 @@ class LLMSettings:
     def sampling(self) -> Sampling:
         return Sampling(temperature=self.temperature)
 
+    def __post_init__(self) -> None:
+        if self.history_mode == "auto":  # resolved here, so every row records the mode that ran
+            mode = "shifted" if self.model.split(":")[0] == "embedded" else "sliding"
+            object.__setattr__(self, "history_mode", mode)
+
+    @property
+    def approximate(self) -> bool:
+        return self.history_mode in APPROXIMATE_MODES
+
     def validate(self) -> None:
         check_model_spec(self.model)
+        if self.history_mode == "shifted" and self.model.split(":")[0] == "openai":
+            raise SettingError("history_mode 'shifted' needs the embedded model (llama.cpp's KV-cache shifting); "
+                               "use sliding or block with a server")
         if not self.seed_start <= self.llm_after:
             raise SettingError(f"seed_start ({self.seed_start:g} s) must not be after llm_after ({self.llm_after:g} s)")
         if self.block < 1:
@@ -84,8 +102,13 @@ class LLMSettings:
 class Query:
     """One LLM call, kept for metrics and recordings."""
 
+    @property
+    def prompt_tail(self) -> str:
+        """The newest history pair's input onwards: what changed since the last query."""
+        return self.prompt[self.prompt.rfind("Input:", 0, self.prompt.rfind("Input:")):]
+
     time: float
-    prompt_tail: str
+    prompt: str
     reply: Reply
     parsed: bool
     gpt4_in: int
@@ -126,7 +149,7 @@ class LLMPolicy:
     @classmethod
     def from_cell(cls, cell: CellSpec, robot: Robot, resources: Resources) -> LLMPolicy:
         s, rt = cell.settings, resources.runtime
-        key = (s.model, s.url, s.api, rt.threads, rt.requests_per_minute, rt.cache)
+        key = (s.model, s.url, s.api, rt.threads, rt.requests_per_minute, rt.cache, s.approximate)
         return cls(robot, s, rt, model=resources.model(key, lambda: _new_model(s, rt)))
 
     def reset(self, seed: int) -> None:
@@ -137,7 +160,7 @@ class LLMPolicy:
         t, h = self._trial, self.settings.history
         if h == 0:
             return []
-        if self.settings.history_mode == "sliding":
+        if self.settings.history_mode != "block":  # sliding and shifted show the same window
             return t.history[-h:]
         while len(t.history) - t.window_start > h:  # cut whole blocks: the prompt prefix stays put between cuts
             t.window_start += self.settings.block
@@ -169,8 +192,7 @@ class LLMPolicy:
         knn = parse_reply(knn_answer(prompt), self.encoding, self.robot.num_joints)
         t.knn_agree += int(action is not None and knn is not None
                            and bool(np.all(np.abs(action - knn) <= self.encoding.resolution + 1e-9)))
-        tail = prompt[prompt.rfind("Input:", 0, prompt.rfind("Input:")):]  # newest pair's input onwards
-        t.queries.append(Query(now, tail, reply, action is not None, gpt4_tokens(prompt), gpt4_tokens(reply.text)))
+        t.queries.append(Query(now, prompt, reply, action is not None, gpt4_tokens(prompt), gpt4_tokens(reply.text)))
         return action if action is not None else t.last_action  # unparseable: hold the last action
 
     @property
@@ -197,6 +219,7 @@ class LLMPolicy:
             "realtime_factor": float(CONTROL_DT / latency.mean()) if latency.mean() > 0 else None,
             "cache_hits": sum(x.reply.cached for x in q),
             "knn_agreement": self._trial.knn_agree / len(q),
+            "approximate_history": self.settings.approximate,
         }
         rt = self.runtime
         if rt.price_in is not None and rt.price_out is not None:
@@ -210,4 +233,5 @@ class LLMPolicy:
 
 def _new_model(settings: LLMSettings, runtime: Runtime) -> LanguageModel:
     return make_model(settings.model, url=settings.url, api=settings.api, cache=runtime.cache,
-                      threads=runtime.threads, requests_per_minute=runtime.requests_per_minute)
+                      threads=runtime.threads, requests_per_minute=runtime.requests_per_minute,
+                      cache_reuse=SHIFT_CHUNK if settings.approximate else 0)

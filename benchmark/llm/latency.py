@@ -1,25 +1,59 @@
-"""How fast is a model as a 10 Hz controller? Query latency by history length and history mode.
+"""How fast is a model as a 10 Hz controller, and what does a fast approximation cost?
 
     bench latency --histories 10 50 --queries 8
 
-For each history length and mode (sliding window, or grow-then-cut-in-blocks, which keeps
-llama.cpp's prompt cache valid between cuts), one A1 trial in MuJoCo: the seed policy fills
-the history, then the LLM answers `queries` times. All cells share one loaded model, in one
-run; the on-disk cache is bypassed so every latency is real.
+For each history length and history mode, one A1 trial in MuJoCo: the seed policy fills the
+history, then the LLM answers `queries` times (the on-disk cache is off, so every latency is
+real). Modes: `sliding` (exact, the paper's), `block` (exact, grows then cuts 10 pairs, so
+llama.cpp's prefix cache stays valid between cuts) and `shifted` (the sliding window with
+llama.cpp's KV-cache shifting: cached chunks are moved to their new positions instead of
+recomputed, which is an APPROXIMATION: their keys and values were computed with the dropped
+pair still in context).
+
+Drift: every reply of every row is compared with a cold recompute of the same prompt (no
+cache at all): the fraction of identical replies and the mean absolute difference of the
+decoded actions. For `shifted`, `outcome_changed` says whether the trial ended differently
+(success or NWT) from the exact `sliding` trial of the same seed.
 """
 
 from __future__ import annotations
 
 import sys
+
 import numpy as np
 from tqdm import tqdm
 
 from benchmark.cell import CellSpec, Resources, Runtime, TrialHooks, run_cell
 from benchmark.llm.controller import CONTROL_DT, LLMSettings
+from benchmark.llm.replies import parse_reply
+
+MODES = ("sliding", "block", "shifted")
+
+
+class _Queries(TrialHooks):
+    """Keeps the LLM policy (and so its queries) of the trial."""
+
+    def start(self, seed, sim, policy, episode):
+        self.policy = policy
+
+
+def _drift(policy) -> dict:
+    """Replies against a cold recompute of the same prompts, on the same model."""
+    model, identical, diffs = policy.model, 0, []
+    cold = getattr(model, "complete")
+    for q in policy.queries:
+        again = cold(q.prompt, policy.settings.sampling, policy.constraint, cold=True)
+        identical += again.text == q.reply.text
+        a = parse_reply(q.reply.text, policy.encoding, policy.robot.num_joints)
+        b = parse_reply(again.text, policy.encoding, policy.robot.num_joints)
+        if a is not None and b is not None:
+            diffs.append(float(np.mean(np.abs(a - b))))
+    n = max(1, len(policy.queries))
+    return {"identical_to_cold": identical / n, "action_diff_vs_cold": float(np.mean(diffs)) if diffs else None}
 
 
 def measure(model_spec: str, histories: list[int], modes: list[str], queries: int, threads: int | None = None,
-            url: str | None = None) -> list[dict]:
+            url: str | None = None, drift: bool = True) -> list[dict]:
     """One row per (history, mode): latency of `queries` live queries after the seed policy filled the history."""
     resources = Resources(Runtime(threads=threads, cache=False))
     rows = []
@@ -32,23 +66,21 @@ def measure(model_spec: str, histories: list[int], modes: list[str], queries: in
                             settings=settings)
             watch = _Queries()
             trial = run_cell(cell, [0], resources, hooks=[watch])[0]
-            latency = np.array([q.reply.latency_s for q in watch.queries])
-            rows.append({"history": history, "mode": mode, "queries": len(latency),
-                         "prompt_tokens": float(np.mean([q.reply.prompt_tokens for q in watch.queries])),
-                         "latency_first_s": float(latency[0]), "latency_mean_s": float(latency.mean()),
-                         "latency_p95_s": float(np.percentile(latency, 95)),
-                         "latency_after_first_s": float(latency[1:].mean()) if len(latency) > 1 else None,
-                         "fell": not trial.success})
+            policy = watch.policy
+            latency = np.array([q.reply.latency_s for q in policy.queries])
+            row = {"history": history, "mode": mode, "approximate": settings.approximate, "queries": len(latency),
+                   "prompt_tokens": float(np.mean([q.reply.prompt_tokens for q in policy.queries])),
+                   "latency_first_s": float(latency[0]), "latency_mean_s": float(latency.mean()),
+                   "latency_p95_s": float(np.percentile(latency, 95)),
+                   "latency_after_first_s": float(latency[1:].mean()) if len(latency) > 1 else None,
+                   "success": trial.success, "nwt": trial.nwt}
+            if drift and hasattr(policy.model, "cache_reuse"):
+                row.update(_drift(policy))
+            rows.append(row)
     finally:
         resources.close()
+    for row in rows:
+        exact = next((r for r in rows if r["history"] == row["history"] and r["mode"] == "sliding"), None)
+        if row["approximate"] and exact is not None:
+            row["outcome_changed"] = (row["success"], round(row["nwt"], 6)) != (exact["success"], round(exact["nwt"], 6))
     return rows
-
-
-class _Queries(TrialHooks):
-    """Keeps the LLM policy's queries of the trial."""
-
-    def start(self, seed, sim, policy, episode):
-        self.policy = policy
-
-    def end(self, seed, result) -> None:
-        self.queries = list(self.policy.queries)

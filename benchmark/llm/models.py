@@ -70,7 +70,9 @@ class EmbeddedModel:
     """A local GGUF model run in-process by llama.cpp (the prebuilt `xllamacpp` wheel)."""
 
     def __init__(self, path: str | None = None, threads: int | None = None, context: int = 16384,
-                 listen_port: int | None = None) -> None:
+                 listen_port: int | None = None, cache_reuse: int = 0) -> None:
+        """`cache_reuse` > 0 turns on llama.cpp's KV-cache shifting (chunks of at least that many tokens
+        are moved to their new positions instead of recomputed): fast, and an approximation."""
         import xllamacpp
 
         if path is None:
@@ -80,7 +82,9 @@ class EmbeddedModel:
         if not Path(path).is_file():
             raise LLMError(f"model file '{path}' not found; pass a local .gguf path or use 'embedded'")
         weights = Path(path)
-        self.id = f"embedded:{weights.name}:{weights.stat().st_size}"
+        self.cache_reuse = cache_reuse
+        # the id keys the reply cache: shifted replies may differ from exact ones for the same prompt
+        self.id = f"embedded:{weights.name}:{weights.stat().st_size}" + (f":kv-shift{cache_reuse}" if cache_reuse else "")
         params = xllamacpp.CommonParams()
         params.model.path = str(weights)
         params.n_ctx = context
@@ -90,21 +94,28 @@ class EmbeddedModel:
         params.cpuparams.n_threads = params.cpuparams_batch.n_threads = threads or default_threads()
         params.hostnames = ["127.0.0.1"]
         params.port = listen_port or 0
+        if cache_reuse:
+            params.swa_full = True  # Gemma 3's sliding-window layers otherwise forbid moving cached chunks
+            params.n_cache_reuse = cache_reuse
         self.threads = params.cpuparams.n_threads
         self._server = xllamacpp.Server(params)
 
     @classmethod
-    def from_spec(cls, name: str | None, threads: int | None = None, **_: object) -> EmbeddedModel:
-        return cls(name, threads=threads)
+    def from_spec(cls, name: str | None, threads: int | None = None, cache_reuse: int = 0,
+                  **_: object) -> EmbeddedModel:
+        return cls(name, threads=threads, cache_reuse=cache_reuse)
 
     @property
     def url(self) -> str:
         """The OpenAI-compatible HTTP endpoint llama.cpp serves this model on (loopback)."""
         return self._server.listening_address + "/v1"
 
-    def complete(self, prompt: str, sampling: Sampling, constraint: Constraint) -> Reply:
+    def complete(self, prompt: str, sampling: Sampling, constraint: Constraint, cold: bool = False) -> Reply:
+        """The model's reply; `cold` recomputes the whole prompt (no cached keys and values at all)."""
         request = {"prompt": prompt, "max_tokens": sampling.max_tokens, "temperature": sampling.temperature,
-                   "seed": sampling.seed, "cache_prompt": True, "stop": ["\n"]}
+                   "seed": sampling.seed, "cache_prompt": not cold, "stop": ["\n"]}
+        if self.cache_reuse and not cold:
+            request["n_cache_reuse"] = self.cache_reuse
         if constraint.grammar:
             request["grammar"] = constraint.grammar
         start = time.perf_counter()
@@ -255,7 +266,7 @@ def check_model_spec(spec: str) -> None:
 
 def make_model(spec: str, url: str | None = None, api_key: str | None = None, api: str = "completions",
                cache: bool = True, threads: int | None = None,
-               requests_per_minute: float | None = None) -> LanguageModel:
+               requests_per_minute: float | None = None, cache_reuse: int = 0) -> LanguageModel:
     """A model from its spec (see MODEL_FORMS), wrapped in the on-disk reply cache unless `cache` is off."""
     from sims import load_entry_point
 
@@ -263,5 +274,5 @@ def make_model(spec: str, url: str | None = None, api_key: str | None = None, ap
     kind, _, name = spec.partition(":")
     cls = load_entry_point(MODELS[kind])
     model = cls.from_spec(name or None, url=url, api_key=api_key, api=api, threads=threads,
-                          requests_per_minute=requests_per_minute)
+                          requests_per_minute=requests_per_minute, cache_reuse=cache_reuse)
     return CachedModel(model) if cache and getattr(cls, "cacheable", True) else model

@@ -1,0 +1,70 @@
+"""Ctrl-C on a 2-worker sweep: once (grace, then exit 130, trials kept) and twice (at once); no orphans."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import psutil
+import pytest
+
+from benchmark.store import ResultStore, load_results
+
+SLOW = Path(__file__).parent / "data" / "slow_sweep.toml"
+BENCH = [sys.executable, "-m", "benchmark.cli"]
+
+
+def _start(results: Path) -> tuple[subprocess.Popen, list[psutil.Process]]:
+    proc = subprocess.Popen([*BENCH, "sweep", str(SLOW), "--workers", "2", "--results", str(results)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    deadline = time.monotonic() + 120
+    children: list[psutil.Process] = []
+    while time.monotonic() < deadline:  # both workers running a trial
+        children = psutil.Process(proc.pid).children(recursive=True)
+        busy = [c for c in children if c.cpu_times().user > 3.0]
+        if len(busy) >= 2:
+            break
+        time.sleep(0.2)
+    assert len(children) >= 2, "the workers never started"
+    return proc, children
+
+
+def _finish(proc: subprocess.Popen, children: list[psutil.Process], limit_s: float) -> tuple[float, str]:
+    start = time.monotonic()
+    _, err = proc.communicate(timeout=120)
+    took = time.monotonic() - start
+    time.sleep(0.5)
+    alive = [c for c in children if c.is_running() and c.status() != psutil.STATUS_ZOMBIE]
+    assert not alive, f"orphaned: {[c.cmdline()[:3] for c in alive]}"
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err and "Exception ignored" not in err, err
+    assert took < limit_s, f"took {took:.1f} s to exit"
+    return took, err
+
+
+@pytest.mark.parametrize("signals, limit_s", [(1, 5.0 + 8.0), (2, 4.0)])
+def test_ctrl_c_on_a_sweep_exits_130_with_no_orphans_and_resumes(tmp_path, signals, limit_s):
+    results = tmp_path / "store"
+    proc, children = _start(results)
+    for _ in range(signals):
+        os.killpg(proc.pid, signal.SIGINT)  # what a terminal's Ctrl-C does: the whole group
+        time.sleep(0.3)
+    took, err = _finish(proc, children, limit_s)
+    assert "interrupted" in err and "run the same command again to resume" in err
+    kept = len(ResultStore(results).done_ids())
+    resumed = subprocess.run([*BENCH, "sweep", str(SLOW), "--workers", "2", "--results", str(results)],
+                             capture_output=True, text=True, timeout=300)
+    assert resumed.returncode == 0, resumed.stderr
+    assert f"{4 - kept} trial(s) run, {kept} already stored" in resumed.stdout
+    frame = load_results(results)
+    assert len(frame) == 4 and frame["trial_id"].is_unique
+
+
+def test_ctrl_c_to_the_driver_alone_ends_its_workers(tmp_path):
+    proc, children = _start(tmp_path / "store")
+    os.kill(proc.pid, signal.SIGINT)
+    _finish(proc, children, 5.0 + 8.0)

@@ -21,7 +21,7 @@ from benchmark import __version__, commands
 from benchmark.cell import CELL_FIELDS, CellSpec, Runtime, setting_fields
 from benchmark.commands import CliError
 from benchmark.policies import POLICIES
-from benchmark.settings import choices_of, hints, kind_of
+from benchmark.settings import build, choices_of, hints, kind_of
 from benchmark.llm.latency import MODES as LATENCY_MODES
 from benchmark.train import TrainConfig
 from robots import UnknownNameError
@@ -84,10 +84,12 @@ def _cell_options(parser, policies: bool = True) -> None:
         if record.options:
             add_fields(parser.add_argument_group(f"{record.title} options"), load_entry_point(record.options),
                        dests=seen)
-    if policies:
+    if policies:  # a setting two policies share (the protocol's timing) is one option, listed with the first
+        shared: dict = {}
         for entry in POLICIES.values():
             if entry.settings:
-                add_fields(parser.add_argument_group(f"--policy {entry.name}: {entry.help}"), entry.settings_class())
+                add_fields(parser.add_argument_group(f"--policy {entry.name}: {entry.help}"), entry.settings_class(),
+                           dests=shared)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -198,7 +200,7 @@ def _settings(args: argparse.Namespace, cls: type) -> dict:
 
 def dispatch(args: argparse.Namespace) -> int:
     given = {k: v for k, v in vars(args).items() if k not in ("command", "argv")}
-    runtime = Runtime(**{**_settings(args, Runtime), "cache": not getattr(args, "no_cache", False)})
+    runtime = build(Runtime, {**_settings(args, Runtime), "cache": not getattr(args, "no_cache", False)}, "bench")
     cell_keys = set(setting_fields())
     cell_values = {k: v for k, v in given.items() if k in cell_keys}
     match args.command:

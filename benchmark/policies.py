@@ -55,12 +55,12 @@ class PolicyEntry:
 
 
 POLICIES: dict[str, PolicyEntry] = {e.name: e for e in (
-    PolicyEntry("stand", "benchmark.policies:StandPolicy", "holds the default pose; cannot walk"),
-    PolicyEntry("rl", "benchmark.policies:SeedPolicy", "the robot's shipped PPO seed policy (or --policy-file)",
-                settings="benchmark.policies:SeedSettings"),
     PolicyEntry("llm", "benchmark.llm.controller:LLMPolicy",
                 "the paper's protocol: seed policy fills the prompt history, then the LLM drives",
                 settings="benchmark.llm.controller:LLMSettings", duration=20.0),
+    PolicyEntry("stand", "benchmark.policies:StandPolicy", "holds the default pose; cannot walk"),
+    PolicyEntry("rl", "benchmark.policies:SeedPolicy", "the robot's shipped PPO seed policy (or --policy-file)",
+                settings="benchmark.policies:SeedSettings"),
 )}
 
 
@@ -105,8 +105,21 @@ class StandPolicy:
 
 @dataclass(frozen=True)
 class SeedSettings:
+    """The seed policy's cell: which actor, and the protocol's timing. With an LLM cell's `seed_start`
+    and `llm_after`, the seed-policy row walks the same trajectory up to the takeover and is evaluated
+    over exactly the LLM's phase, from the same state."""
+
     policy_file: str | None = setting(None, "a policy.npz written by bench train, instead of the robot's shipped "
                                             "one (evaluate before you ship)")
+    seed_start: float = setting(0.0, "s: stand until then (1 in the LLM protocol)", minimum=0)
+    llm_after: float = setting(0.0, "s: metrics start here (an LLM cell's takeover, for a reference row over the "
+                                    "same phase)", minimum=0)
+
+    eval_start_setting = "llm_after"
+
+    @property
+    def eval_start(self) -> float:
+        return self.llm_after
 
 
 def seed_policy_path(robot: Robot, settings: SeedSettings | None = None) -> Path:
@@ -124,18 +137,20 @@ class SeedPolicy:
 
     name = "rl"
 
-    def __init__(self, robot: Robot, actor: MlpActor | None = None, path: Path | None = None) -> None:
+    def __init__(self, robot: Robot, actor: MlpActor | None = None, path: Path | None = None,
+                 start: float = 0.0) -> None:
         self.actor = actor or MlpActor.load(path or seed_policy_path(robot))
+        self.start, self._zeros = start, np.zeros(robot.num_joints)
 
     @classmethod
     def from_cell(cls, cell: CellSpec, robot: Robot, resources: Resources) -> SeedPolicy:
-        return cls(robot, path=seed_policy_path(robot, cell.settings))
+        return cls(robot, path=seed_policy_path(robot, cell.settings), start=cell.settings.seed_start)
 
     def reset(self, seed: int) -> None:
         pass
 
     def act(self, obs: np.ndarray, state: RobotState) -> np.ndarray:
-        return self.actor(obs)
+        return self.actor(obs) if state.time >= self.start - 1e-9 else self._zeros
 
     def metrics(self) -> dict:
         return {}

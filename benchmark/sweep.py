@@ -130,7 +130,7 @@ def _processes(todo: list[Trial], runtime: Runtime, workers: int, stop: Interrup
                                initializer=_worker_init)
 
     def end_workers() -> None:
-        for process in list(getattr(pool, "_processes", {}).values()):
+        for process in list((getattr(pool, "_processes", None) or {}).values()):
             process.kill()
         pool.shutdown(wait=False, cancel_futures=True)
 

@@ -13,7 +13,7 @@ class NewtonOptions:
         "help": "newton: cpu, cuda or cuda:N (default cuda when present, else cpu)"})
     solver: str = field(default="mujoco", metadata={
         "help": "newton: mujoco (SolverMuJoCo on mujoco_warp) or featherstone (faster, NaN on heightfields)",
-        "choices": SOLVERS})
+        "choices": SOLVERS, "noun": "newton solver"})
 
     def __post_init__(self) -> None:
         from robots import UnknownNameError

@@ -44,12 +44,18 @@ def uninterrupted(tmp_path_factory) -> pd.DataFrame:
 def test_shipped_experiments_expand_into_the_papers_grids():
     assert set(available_experiments()) >= {"normalization", "history", "observation", "description", "cross_engine"}
     norm = load_experiment("normalization").trials()
-    # The seed policy ignores the encoding: one seed-policy cell, not five, beside the five LLM cells.
-    assert len({t.cell for t in norm}) == 6 and len(norm) == 30
-    assert sorted({t.cell.settings.encoding for t in norm if t.cell.policy == "llm"}) == ["E1", "E2", "E3", "E4", "E5"]
-    assert all(t.cell.settings.observation == "O2" and t.cell.duration == 20.0 for t in norm if t.cell.policy == "llm")
-    assert [len(t.cell.settings.prompt_parts) for t in load_experiment("description").trials()[::5]] == [1, 2, 3, 4, 5]
-    assert sorted({t.cell.settings.history for t in load_experiment("history").trials()}) == [0, 10, 30, 50]
+    # The seed policy ignores the encoding: one seed-policy cell beside five encodings x five models
+    # (the embedded model and four reference models), every row over the LLM's phase.
+    assert len({t.cell for t in norm}) == 26 and len(norm) == 130
+    llm = [t for t in norm if t.cell.policy == "llm"]
+    assert sorted({t.cell.settings.encoding for t in llm}) == ["E1", "E2", "E3", "E4", "E5"]
+    assert sorted({t.cell.settings.model for t in llm}) == ["embedded", "hold", "knn", "oracle", "replay"]
+    assert all(t.cell.settings.observation == "O2" and t.cell.duration == 20.0 for t in llm)
+    assert {t.cell.eval_start for t in norm} == {10.0}
+    description = [t for t in load_experiment("description").trials() if t.labels["controller"] == "embedded"]
+    assert [len(t.cell.settings.prompt_parts) for t in description[::5]] == [1, 2, 3, 4, 5]
+    history = load_experiment("history").trials()
+    assert sorted({t.cell.settings.history for t in history if t.cell.policy == "llm"}) == [0, 10, 30, 50]
     cross = load_experiment("cross_engine")
     assert len({t.cell for t in cross.trials()}) == 3 * 2 * 2 * 2
     rl = cross.trials(only={"controller": "rl"})
@@ -184,3 +190,22 @@ def test_llm_cells_sweep_with_the_embedded_model_and_report_tokens(tmp_path, mon
     assert "| policy | encoding | trials | NWT |" in md and "GPT-4 input tokens" in md and "| rl | - | 1 |" in md
     assert "kNN agreement" in md and "Wilson 95% interval" in md
     assert (tmp_path / "reports" / "figures" / "llm_tiny_trajectories.png").is_file()
+
+
+def test_reference_rows_cover_the_llm_phase_from_the_same_state_and_tables_show_intervals(tmp_path):
+    path = tmp_path / "phase.toml"
+    path.write_text('name = "phase"\nseeds = [0, 1]\n[fixed]\nduration = 2.5\nseed_start = 1.0\nllm_after = 2.0\n'
+                    'history = 5\n[grid]\ncontroller = ["seed_policy", "hold"]\n[variants.controller]\n'
+                    'seed_policy = { policy = "rl" }\nhold = { policy = "llm", model = "hold" }\n')
+    run_sweep(load_experiment(str(path)).trials(), ResultStore(tmp_path / "store"), workers=1)
+    frame = load_results(tmp_path / "store")
+    assert set(frame["eval_start"]) == {2.0} and len(frame) == 4
+    for seed in (0, 1):
+        rows = frame[frame["seed"] == seed].set_index("controller")
+        before = 20  # control steps up to the takeover at 2 s
+        seed_traj, hold_traj = rows.loc["seed_policy", "traj_joint_pos"], rows.loc["hold", "traj_joint_pos"]
+        assert [list(q) for q in seed_traj[:before]] == [list(q) for q in hold_traj[:before]]
+        assert [list(q) for q in seed_traj[before:]] != [list(q) for q in hold_traj[before:]]
+    write_reports(frame, tmp_path / "reports")
+    table = [line for line in (tmp_path / "reports" / "phase.md").read_text().splitlines() if line.startswith("| ")]
+    assert all(" [" in line and "±" in line for line in table[1:]), table

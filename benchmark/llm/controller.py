@@ -59,8 +59,10 @@ class LLMSettings:
                                + "; ".join(f"{k} {v[0]}" for k, v in OBSERVATIONS.items()), choices=tuple(OBSERVATIONS))
     constrained: bool = setting(True, "grammar/schema on the reply (--no-constrained: the paper's setting)")
     temperature: float = setting(0.0, "sampling temperature", minimum=0)
-    llm_after: float = setting(10.0, "s: the LLM takes over", minimum=0)
-    seed_start: float = setting(1.0, "s: the seed policy starts filling the history", minimum=0)
+    llm_after: float = setting(10.0, "s: the LLM takes over and metrics start (with --policy rl: metrics start, "
+                                     "default 0)", minimum=0)
+    seed_start: float = setting(1.0, "s: the seed policy starts walking and filling the history (with --policy rl: "
+                                     "default 0)", minimum=0)
     block: int = 10  # pairs cut at once in block mode
 
     eval_start_setting = "llm_after"  # the setting that starts the evaluated phase

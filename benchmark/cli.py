@@ -151,7 +151,9 @@ def build_parser() -> argparse.ArgumentParser:
     report.add_argument("results", help="a results directory written by bench sweep, or a results.parquet")
     report.add_argument("--format", default="md", choices=("md", "html", "csv"), help="table format (default md)")
     report.add_argument("--out", default="reports", help="folder for tables; figures go to OUT/figures "
-                                                         "(default ./reports)")
+                                                         "(default ./reports, in the current directory)")
+    report.add_argument("--force", action="store_true",
+                        help="replace a report that was made from another store (refused otherwise)")
 
     ship = sub.add_parser("ship", help="install a trained policy.npz as robots/ROBOT/policy.npz (+ policy.json)")
     ship.add_argument("path", help="a policy.npz written by bench train")

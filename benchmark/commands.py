@@ -265,8 +265,14 @@ def cmd_report(args) -> int:
         raise CliError(str(err)) from None
     if frame.empty:
         raise CliError(f"'{args.results}' holds no trials yet; run 'bench sweep' into it first")
+    from benchmark.report import ReportConflict
+
     print(f"writing reports into {Path(args.out).resolve()}", file=sys.stderr)
-    for path in write_reports(frame, Path(args.out), args.format):
+    try:
+        written = write_reports(frame, Path(args.out), args.format, force=args.force)
+    except ReportConflict as err:
+        raise CliError(str(err)) from None
+    for path in written:
         print(path)
     return 0
 

@@ -13,7 +13,9 @@ the LLM (or across engines when there is no LLM).
 
 from __future__ import annotations
 
+import hashlib
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -217,10 +219,35 @@ def _title_and_command(name: str, frame: pd.DataFrame) -> tuple[str, list[str]]:
     return title, commands
 
 
-def write_reports(frame: pd.DataFrame, out: Path, fmt: str = "md") -> list[Path]:
-    """Tables (`OUT/EXPERIMENT.FMT`) and figures (`OUT/figures/EXPERIMENT_*.png`) per experiment."""
+class ReportConflict(ValueError):
+    """An existing report was made from another store: replacing it needs `force`."""
+
+
+def store_digest(group: pd.DataFrame) -> str:
+    """Names the trials a report was made from: a partial store and a full one differ."""
+    return hashlib.sha256(" ".join(sorted(group["trial_id"].astype(str))).encode()).hexdigest()[:12]
+
+
+DIGEST = re.compile(r"Store digest: `([0-9a-f]+)`")
+
+
+def _check_replace(path: Path, digest: str, force: bool) -> None:
+    if force or not path.is_file():
+        return
+    found = DIGEST.search(path.read_text(errors="replace"))
+    if found is None or found.group(1) != digest:
+        raise ReportConflict(f"{path} was made from another store (digest {found.group(1) if found else 'none'}, "
+                             f"this one {digest}); pass --force to replace it, or --out DIR")
+
+
+def write_reports(frame: pd.DataFrame, out: Path, fmt: str = "md", force: bool = False) -> list[Path]:
+    """Tables (`OUT/EXPERIMENT.FMT`) and figures (`OUT/figures/EXPERIMENT_*.png`) per experiment. An existing
+    table made from another store is not replaced unless `force`."""
     if fmt not in FORMATS:
         raise ValueError(f"unknown format '{fmt}'; valid: {', '.join(FORMATS)}")
+    for name, group in frame.groupby("experiment", sort=False):
+        for suffix in ("md", "html"):
+            _check_replace(out / f"{name}.{suffix}", store_digest(group), force or suffix != fmt)
     out.mkdir(parents=True, exist_ok=True)
     written = []
     for name, group in frame.groupby("experiment", sort=False):
@@ -235,7 +262,8 @@ def write_reports(frame: pd.DataFrame, out: Path, fmt: str = "md") -> list[Path]
         if fmt == "csv":
             table.to_csv(path, index=False)
         elif fmt == "html":
-            parts = [f"<h1>{title}</h1>", table.to_html(index=False)]
+            parts = [f"<h1>{title}</h1>", f"<p>Store digest: `{store_digest(group)}` ({len(group)} trials)</p>",
+                     table.to_html(index=False)]
             if engines is not None:
                 parts += ["<h2>Engines side by side (success / NWT)</h2>", engines.to_html(index=False)]
             parts += [f'<img src="figures/{p.name}" alt="{p.stem}">' for p in figures]
@@ -275,4 +303,6 @@ def _markdown_report(name: str, title: str, commands: list[str], group: pd.DataF
     if versions or commits:
         lines += [f"Versions: {', '.join(f'{k} {v}' for k, v in versions.items())}; "
                   f"git commit {', '.join(commits) or 'unknown'}.", ""]
+    lines += [f"Store digest: `{store_digest(group)}` ({len(group)} trials; `bench report` will not replace this "
+              "file with a report of another store unless given --force).", ""]
     return "\n".join(lines)

@@ -57,6 +57,10 @@ def kind_of(hint) -> str:
 def coerce(value, hint, key: str):
     """`value` (from TOML, JSON or the command line) as the field type `hint`, or a SettingError."""
     base, optional = _base(hint)
+    if hasattr(value, "item") and not isinstance(value, (str, list, tuple)):  # a numpy scalar from a store
+        value = value.item()
+    if isinstance(value, float) and value != value:  # NaN: a column this cell does not use
+        value = None
     if value is None or (optional and isinstance(value, str) and value.lower() in ("none", "null")):
         if optional:
             return None

@@ -244,7 +244,7 @@ def run_sweep(trials: list[Trial], store: ResultStore, workers: int = 1, executo
                 ran += 1
                 bar.update()
                 if bar.disable:
-                    print(f"bench: {bar.n}/{len(trials)} trials ({ran} run now, "
+                    print(f"bench: {len(trials) - len(todo) + ran}/{len(trials)} trials ({ran} run now, "
                           f"{time.perf_counter() - start:.0f} s)", file=sys.stderr, flush=True)
         except KeyboardInterrupt:  # a second Ctrl-C, or the grace period ran out in this process
             raise Interrupted from None

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
-
+import os
+import sys
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import NamedTuple, Protocol
 
@@ -141,3 +144,21 @@ def pd_torque(robot: Robot, targets: np.ndarray, q: np.ndarray, qd: np.ndarray, 
     """The 200 Hz joint PD law every engine applies, clipped to the torque limit."""
     tau = strength * (robot.kp * (targets - q) - robot.kd * qd)
     return np.clip(tau, -robot.torque_limit, robot.torque_limit)
+
+
+@contextlib.contextmanager
+def quiet_fds(fds: tuple[int, ...] = (1,)) -> Iterator[None]:
+    """Silence file descriptors meanwhile: engines' C code prints banners (stdout would corrupt
+    `--json` output) and warnings that do not apply (Warp's missing CUDA driver on a CPU run)."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = [os.dup(fd) for fd in fds]
+    with open(os.devnull, "w") as devnull:
+        for fd in fds:
+            os.dup2(devnull.fileno(), fd)
+        try:
+            yield
+        finally:
+            for fd, copy in zip(fds, saved):
+                os.dup2(copy, fd)
+                os.close(copy)

@@ -20,15 +20,14 @@ from collections.abc import Sequence
 import numpy as np
 
 from robots import Robot
-from sims.base import (BodyPoses, Dynamics, PhysicsConfig, RobotState, initial_joint_pos, pd_torque,
+from sims.base import (BodyPoses, Dynamics, PhysicsConfig, RobotState, initial_joint_pos, pd_torque, quiet_fds,
                         world_to_base_batch)
 from sims.newton_options import NewtonOptions
 from sims.terrain import Terrain
 
 
 def default_device() -> str:
-    import warp as wp
-
+    wp = _quiet_warp()
     return "cuda" if wp.is_cuda_available() else "cpu"
 
 
@@ -37,6 +36,8 @@ def _quiet_warp():
     import warp as wp
 
     wp.config.log_level = wp.LOG_WARNING
+    with quiet_fds((2,)):  # on a machine without CUDA, Warp's C code warns once at init; CPU runs do not care
+        wp.init()
     return wp
 
 

@@ -8,35 +8,18 @@ to the base link origin so every engine reports the same point.
 
 from __future__ import annotations
 
-import contextlib
-import os
-import sys
-from collections.abc import Iterator
-
 import numpy as np
 
-
-@contextlib.contextmanager
-def _quiet_stdout() -> Iterator[None]:
-    """PyBullet's C code prints banners on stdout, which would corrupt `--json` output."""
-    sys.stdout.flush()
-    saved = os.dup(1)
-    with open(os.devnull, "w") as devnull:
-        os.dup2(devnull.fileno(), 1)
-        try:
-            yield
-        finally:
-            os.dup2(saved, 1)
-            os.close(saved)
+from sims.base import (BodyPoses, Dynamics, PhysicsConfig, RobotState, initial_joint_pos, pd_torque, quiet_fds,
+                       world_to_base)
 
 
-with _quiet_stdout():
+with quiet_fds((1, 2)):  # banners on stdout, its build time on stderr
     import pybullet
     from pybullet_utils.bullet_client import BulletClient
 
-from robots import Robot
-from sims.base import BodyPoses, Dynamics, PhysicsConfig, RobotState, initial_joint_pos, pd_torque, world_to_base
-from sims.terrain import Terrain
+from robots import Robot  # noqa: E402  (after the quiet import of pybullet)
+from sims.terrain import Terrain  # noqa: E402
 
 
 def _xyzw_to_wxyz(q) -> np.ndarray:
@@ -50,7 +33,7 @@ class PybulletSim:
 
     def __init__(self, robot: Robot, terrain: Terrain, physics: PhysicsConfig = PhysicsConfig()) -> None:
         self.robot, self.terrain, self.physics = robot, terrain, physics
-        with _quiet_stdout():
+        with quiet_fds():
             self.client = p = BulletClient(connection_mode=pybullet.DIRECT)
         p.setTimeStep(physics.dt)
         p.setPhysicsEngineParameter(deterministicOverlappingPairs=1)

@@ -147,6 +147,7 @@ class Runtime:
     requests_per_minute: float | None = None  # remote LLM servers: at most this many queries a minute
     price_in: float | None = setting(None, "USD per 1M input tokens, for a cost estimate", minimum=0)
     price_out: float | None = setting(None, "USD per 1M output tokens", minimum=0)
+    price_cached_in: float | None = setting(None, "USD per 1M cached input tokens (default: --price-in)", minimum=0)
 
 
 class Resources:

@@ -17,7 +17,8 @@ import pytest
 from benchmark.cli import main
 from benchmark.llm.encodings import ENCODINGS
 from benchmark.llm.models import CachedModel, Constraint, EmbeddedModel, LLMError, OpenAIModel, Sampling, make_model
-from benchmark.llm.replies import gbnf_grammar, parse_reply
+from benchmark.llm.prompt import HISTORY_HEADER
+from benchmark.llm.replies import gbnf_grammar, json_schema, parse_reply, reply_regex
 
 PROMPT = ("Input: [100, 102, 98]\nOutput: [90, 110, 95, 105, 100, 100, 90, 110, 95, 105, 100, 100]\n"
           "Input: [101, 103, 97]\nOutput:")
@@ -41,9 +42,16 @@ class LoopbackServer:
         class Handler(BaseHTTPRequestHandler):
             def do_POST(self):  # noqa: N802
                 body = self.rfile.read(int(self.headers["Content-Length"]))
-                status, payload = outer.answer(self.path, body, self.headers)
+                self._send(*outer.answer(self.path, body, self.headers))
+
+            def do_GET(self):  # noqa: N802
+                self._send(*outer.answer(self.path, None, self.headers))
+
+            def _send(self, status, payload, headers=None):
                 self.send_response(status)
                 self.send_header("Content-Type", "application/json")
+                for key, value in (headers or {}).items():
+                    self.send_header(key, value)
                 self.end_headers()
                 self.wfile.write(payload)
 
@@ -65,16 +73,23 @@ class Proxy(LoopbackServer):
     """In front of the embedded model's own OpenAI-compatible server: forwards `budget` requests,
     then answers `status`; remembers the Authorization headers."""
 
-    def __init__(self, upstream: str, budget: int, status: int = 503, fail_first: int = 0) -> None:
+    def __init__(self, upstream: str, budget: int, status: int = 503, fail_first: int = 0,
+                 retry_after: str | None = None) -> None:
         self.upstream, self.budget, self.status, self.fail_first = upstream, budget, status, fail_first
-        self.seen, self.auth = 0, []
+        self.retry_after, self.seen, self.auth, self.bodies, self.times = retry_after, 0, [], [], []
         super().__init__()
 
-    def answer(self, path: str, body: bytes, headers) -> tuple[int, bytes]:
+    def answer(self, path: str, body: bytes | None, headers):
+        if body is None:  # GET /models: the server's own answer (how `auto` identifies it)
+            with urllib.request.urlopen(self.upstream + path.removeprefix("/v1"), timeout=30) as response:
+                return 200, response.read()
         self.auth.append(headers.get("Authorization"))
+        self.bodies.append(json.loads(body))
+        self.times.append(time.monotonic())
         self.seen += 1
         if self.seen <= self.fail_first or self.seen > self.budget + self.fail_first:
-            return self.status, b'{"error": "unavailable"}'
+            return self.status, b'{"error": "unavailable"}', ({"Retry-After": self.retry_after} if self.retry_after
+                                                                else {})
         request = urllib.request.Request(self.upstream + path.removeprefix("/v1"), data=body,
                                          headers={"Content-Type": "application/json"}, method="POST")
         with urllib.request.urlopen(request, timeout=300) as response:
@@ -96,23 +111,49 @@ def test_cache_returns_the_identical_reply_without_asking_again(embedded, tmp_pa
     assert not other.cached and len(list(tmp_path.rglob("*.json"))) == 2
 
 
-def test_http_backend_against_a_real_server_on_loopback(embedded):
+E5 = ENCODINGS["E5"]
+ALL = Constraint(grammar=gbnf_grammar(E5), schema=json_schema(E5), regex=reply_regex(E5))
+DESCRIBED = "You control a robot.\n\nNumbers are integers.\n\n" + HISTORY_HEADER + "\n" + PROMPT
+
+
+@pytest.mark.parametrize("layout", ["completions", "chat"])
+def test_both_layouts_against_the_real_llamacpp_server_on_loopback(embedded, layout):
     proxy = Proxy(embedded.url, budget=10)
     try:
-        model = OpenAIModel("gemma-3-270m", url=proxy.url, api_key=SECRET)
-        reply = model.complete(PROMPT, Sampling(), GRAMMAR)
-        assert parse_reply(reply.text, ENCODINGS["E5"]) is not None, reply.text
+        model = OpenAIModel("gemma-3-270m", url=proxy.url, api_key=SECRET, layout=layout)
+        assert model.server == "llamacpp"  # `auto` asked the server (its /models says owned_by llamacpp)
+        reply = model.complete(DESCRIBED, Sampling(), ALL)
+        assert parse_reply(reply.text, E5) is not None and not ALL.violated_by(reply.text), reply.text
         assert proxy.auth[-1] == f"Bearer {SECRET}" and SECRET not in repr(model)
+        body = proxy.bodies[-1]
+        assert body["grammar"] == ALL.grammar and "regex" not in body and "structured_outputs" not in body
+        if layout == "chat":  # the paper's layout: the description as the system message
+            assert [m["role"] for m in body["messages"]] == ["system", "user"]
+            assert body["messages"][0]["content"] == "You control a robot.\n\nNumbers are integers."
+            assert body["messages"][1]["content"].startswith(HISTORY_HEADER)
+        else:
+            assert body["prompt"] == DESCRIBED
     finally:
         proxy.close()
 
 
-def test_http_backend_retries_429_then_succeeds(embedded):
-    proxy = Proxy(embedded.url, budget=10, status=429, fail_first=2)
+def test_cached_tokens_come_from_llamacpps_own_figures(embedded):
+    model = OpenAIModel("gemma-3-270m", url=embedded.url, server="llamacpp")
+    model.complete(DESCRIBED, Sampling(), ALL)
+    again = model.complete(DESCRIBED + " [100, 100, 100]\nInput: [1, 2, 3]\nOutput:", Sampling(), ALL)
+    assert again.cached_tokens > 40 and again.cached_tokens < again.prompt_tokens
+
+
+def test_429_with_retry_after_waits_and_latency_excludes_the_wait(embedded):
+    proxy = Proxy(embedded.url, budget=10, status=429, fail_first=1, retry_after="1")
     try:
-        model = OpenAIModel("gemma-3-270m", url=proxy.url, backoff_s=0.05)
-        assert parse_reply(model.complete(PROMPT, Sampling(), GRAMMAR).text, ENCODINGS["E5"]) is not None
-        assert proxy.seen == 3
+        model = OpenAIModel("gemma-3-270m", url=proxy.url, server="llamacpp")
+        start = time.monotonic()
+        reply = model.complete(PROMPT, Sampling(), GRAMMAR)
+        took = time.monotonic() - start
+        assert parse_reply(reply.text, E5) is not None and proxy.seen == 2 and reply.retries == 1
+        assert proxy.times[1] - proxy.times[0] >= 1.0  # Retry-After honoured
+        assert reply.latency_s < took - 0.9  # the wait is not latency
     finally:
         proxy.close()
 
@@ -121,28 +162,73 @@ def test_server_errors_and_a_dead_server_are_one_clear_line():
     proxy = Proxy("http://127.0.0.1:9", budget=0, status=500)
     try:
         with pytest.raises(LLMError, match=r"answered HTTP 500 after 3 attempt\(s\)"):
-            OpenAIModel("m", url=proxy.url, retries=2, backoff_s=0.01).complete(PROMPT, Sampling(), GRAMMAR)
+            OpenAIModel("m", url=proxy.url, retries=2, server="vllm").complete(PROMPT, Sampling(), GRAMMAR)
     finally:
         proxy.close()
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         dead = s.getsockname()[1]
     with pytest.raises(LLMError, match="cannot reach .* is the server running"):
-        OpenAIModel("m", url=f"http://127.0.0.1:{dead}/v1", retries=1, backoff_s=0.01).complete(
+        OpenAIModel("m", url=f"http://127.0.0.1:{dead}/v1", retries=1).complete(
             PROMPT, Sampling(), GRAMMAR)
 
 
 class CannedServer(LoopbackServer):
-    """Answers every completion at once with the same twelve numbers; remembers arrival times."""
+    """Answers every completion at once with the same text (twelve numbers by default), as a server of
+    another kind would; remembers the requests and their arrival times."""
 
-    def __init__(self) -> None:
-        self.arrivals: list[float] = []
+    def __init__(self, text: str = " [" + ", ".join(["100"] * 12) + "]", owned_by: str = "vllm") -> None:
+        self.text, self.owned_by, self.arrivals, self.bodies = text, owned_by, [], []
         super().__init__()
 
-    def answer(self, path: str, body: bytes, headers) -> tuple[int, bytes]:
+    def answer(self, path: str, body: bytes | None, headers) -> tuple[int, bytes]:
+        if body is None:
+            return 200, json.dumps({"object": "list", "data": [{"id": "m", "object": "model",
+                                                                "owned_by": self.owned_by}]}).encode()
         self.arrivals.append(time.monotonic())
-        return 200, json.dumps({"choices": [{"text": " [" + ", ".join(["100"] * 12) + "]"}],
-                                "usage": {"prompt_tokens": 40, "completion_tokens": 36}}).encode()
+        self.bodies.append(json.loads(body))
+        usage = {"prompt_tokens": 40, "completion_tokens": 36, "prompt_tokens_details": {"cached_tokens": 32}}
+        choice = ({"index": 0, "message": {"role": "assistant", "content": self.text}, "finish_reason": "stop"}
+                  if path.endswith("/chat/completions") else {"index": 0, "text": self.text, "finish_reason": "stop"})
+        return 200, json.dumps({"id": "x", "object": "text_completion", "created": 0, "model": "m",
+                                "choices": [choice], "usage": usage}).encode()
+
+
+@pytest.mark.parametrize("kind, layout, field, value", [
+    ("vllm", "completions", "structured_outputs", {"regex": reply_regex(E5)}),
+    ("vllm", "chat", "structured_outputs", {"regex": reply_regex(E5)}),
+    ("sglang", "completions", "regex", reply_regex(E5)),
+    ("openai", "chat", "response_format", {"type": "json_schema", "json_schema": json_schema(E5)}),
+    ("llamacpp", "completions", "grammar", gbnf_grammar(E5)),
+])
+def test_each_server_kind_gets_its_own_documented_constraint(kind, layout, field, value):
+    server = CannedServer(owned_by=kind)
+    try:
+        model = OpenAIModel("m", url=server.url, layout=layout)  # auto: identified from /models
+        reply = model.complete(DESCRIBED, Sampling(), ALL)
+        assert model.server == kind and server.bodies[-1][field] == value
+        others = {"structured_outputs", "regex", "grammar", "response_format"} - {field}
+        assert not others & set(server.bodies[-1])
+        assert reply.cached_tokens == 32 and reply.prompt_tokens == 40
+    finally:
+        server.close()
+
+
+def test_a_server_that_ignores_the_constraint_is_counted_and_warned_once(tmp_path, capsys):
+    from benchmark.cell import CellSpec, Runtime, Resources, run_cell
+    from benchmark.llm.controller import LLMSettings
+
+    server = CannedServer(text="Sure! Here are some numbers: 1, 2, 3", owned_by="sglang")
+    try:
+        cell = CellSpec(policy="llm", duration=2.3, settings=LLMSettings(
+            model="openai:m", url=server.url, history=5, llm_after=2.0))
+        trial = run_cell(cell, [0], Resources(Runtime(cache=False)))[0]
+    finally:
+        server.close()
+    m = trial.policy_metrics
+    assert m["constraint_violations"] == m["queries"] == 3 and m["parse_failures"] == 3
+    assert m["server_kind"] == "sglang" and m["layout"] == "completions" and m["cached_input_tokens"] == 32
+    assert capsys.readouterr().err.count("broke the output constraint") == 1
 
 
 def test_rate_limit_spaces_requests_to_a_remote_server():

@@ -19,7 +19,7 @@ ADAPT: dict[str, tuple[list[str], dict[str, str]] | str] = {
     "bench run --policy rl": (["--trials", "2", "--duration", "2"], {}),
     "bench run --duration 2.5 --llm-after 2 --trials 1": ([], {}),
     "bench run --llm oracle --trials 2": ([], {}),
-    "bench run --llm openai:gpt-4o --llm-api chat --price-in 2.5 --price-out 10":
+    "bench run --llm openai:gpt-4o --llm-layout chat --price-in 2.5 --price-out 10":
         "needs an OpenAI key and network; the HTTP path is tested on loopback in test_llm_models.py",
     "bench run --llm openai:m --llm-url http://127.0.0.1:8080/v1":
         "needs a server on port 8080; test_llm_models.py runs the same path against llama.cpp on loopback",

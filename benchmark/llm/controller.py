@@ -9,17 +9,19 @@ counted, kept with its text, and handled by holding the last action.
 
 from __future__ import annotations
 
+import sys
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from benchmark.llm.encodings import DEFAULT_ENCODING, ENCODINGS, get_encoding
-from benchmark.llm.models import MODEL_FORMS, Constraint, LanguageModel, Reply, Sampling, check_model_spec, make_model
-from benchmark.llm.prompt import PARTS, PromptConfig, build_prompt, describe_robot
+from benchmark.llm.models import (MODEL_FORMS, SERVER_KINDS, Constraint, LanguageModel, Reply, Sampling,
+                                   check_model_spec, make_model)
+from benchmark.llm.prompt import LAYOUTS, PARTS, PromptConfig, build_prompt, describe_robot
 from benchmark.llm.prompt_inputs import DEFAULT_OBSERVATION, OBSERVATIONS
 from benchmark.llm.reference import knn_answer
-from benchmark.llm.replies import gbnf_grammar, json_schema, parse_reply
+from benchmark.llm.replies import gbnf_grammar, json_schema, parse_reply, reply_regex
 from benchmark.llm.tokens import gpt4_tokens
 from benchmark.observation import llm_observation
 from benchmark.policies import SeedPolicy
@@ -44,7 +46,12 @@ class LLMSettings:
     url: str | None = setting(None, "OpenAI-compatible base URL, e.g. http://127.0.0.1:8080/v1 (or "
                                     "PROMPTWALK_LLM_URL); the key comes from PROMPTWALK_LLM_API_KEY or "
                                     "OPENAI_API_KEY and is never printed", flag="--llm-url")
-    api: str = setting("completions", "endpoint kind", choices=("completions", "chat"), flag="--llm-api")
+    layout: str = setting("completions", "prompt layout: completions (one text) or chat (the description as the "
+                                         "system message, history and current input as the user message, as in the "
+                                         "paper's code)", choices=LAYOUTS, flag="--llm-layout")
+    server: str = setting("auto", "serving stack, for its own constraint field: openai (response_format), vllm "
+                                  "(structured_outputs), sglang (regex), llamacpp (grammar), or auto (asks the server)",
+                          choices=SERVER_KINDS, flag="--llm-server")
     history: int = setting(50, "observation/action pairs in the prompt", minimum=0)
     history_mode: str = setting("auto", "sliding: exact sliding window (the paper's; re-reads the whole prompt "
                                         "every query); block: exact, grows then cuts 10 pairs at once (prefix cache "
@@ -124,6 +131,7 @@ class _Trial:
     queries: list[Query] = field(default_factory=list)
     last_action: np.ndarray | None = None
     knn_agree: int = 0  # replies within one encoding step of the kNN answer on every value
+    violations: int = 0  # replies that break the output constraint (a server that ignored it)
 
 
 class LLMPolicy:
@@ -140,10 +148,10 @@ class LLMPolicy:
         self.encoding = get_encoding(settings.encoding)
         self.description = describe_robot(robot, settings.prompt, control_hz=1.0 / CONTROL_DT)
         self.constraint = Constraint()
-        if settings.constrained:
-            self.constraint = (Constraint(schema=json_schema(self.encoding, robot.num_joints))
-                               if settings.api == "chat" and settings.model.startswith("openai")
-                               else Constraint(grammar=gbnf_grammar(self.encoding, robot.num_joints)))
+        if settings.constrained:  # one rule in every dialect; each model sends the one its server reads
+            n = robot.num_joints
+            self.constraint = Constraint(grammar=gbnf_grammar(self.encoding, n), schema=json_schema(self.encoding, n),
+                                         regex=reply_regex(self.encoding, n))
         self.seed_action = np.zeros(robot.num_joints)  # what the seed policy would do now (for recordings)
         self.last_prompt = ""
         self._trial = _Trial()
@@ -151,7 +159,7 @@ class LLMPolicy:
     @classmethod
     def from_cell(cls, cell: CellSpec, robot: Robot, resources: Resources) -> LLMPolicy:
         s, rt = cell.settings, resources.runtime
-        key = (s.model, s.url, s.api, rt.threads, rt.requests_per_minute, rt.cache, s.approximate)
+        key = (s.model, s.url, s.layout, s.server, rt.threads, rt.requests_per_minute, rt.cache, s.approximate)
         return cls(robot, s, rt, model=resources.model(key, lambda: _new_model(s, rt)))
 
     def reset(self, seed: int) -> None:
@@ -191,6 +199,9 @@ class LLMPolicy:
             self.model.set_reference(self.seed_action, self.encoding)
         reply = self.model.complete(prompt, self.settings.sampling, self.constraint)
         action = parse_reply(reply.text, self.encoding, self.robot.num_joints)
+        if self.constraint.violated_by(reply.text):
+            t.violations += 1
+            _warn_once(self.model, reply.text)
         knn = parse_reply(knn_answer(prompt), self.encoding, self.robot.num_joints)
         t.knn_agree += int(action is not None and knn is not None
                            and bool(np.all(np.abs(action - knn) <= self.encoding.resolution + 1e-9)))
@@ -207,12 +218,18 @@ class LLMPolicy:
             return {"queries": 0, "parse_failures": 0}
         latency = np.array([x.reply.latency_s for x in q if not x.reply.cached] or [0.0])
         tokens_in = np.array([x.reply.prompt_tokens for x in q], dtype=float)
+        cached_in = np.array([x.reply.cached_tokens for x in q if not x.reply.cached] or [0], dtype=float)
         tokens_out = np.array([x.reply.completion_tokens for x in q], dtype=float)
         out = {
             "queries": len(q),
             "parse_failures": sum(not x.parsed for x in q),
             "failed_replies": [x.reply.text for x in q if not x.parsed][:5],
             "input_tokens": float(tokens_in.mean()),
+            "cached_input_tokens": float(cached_in.mean()),
+            "retries": sum(x.reply.retries for x in q),
+            "constraint_violations": self._trial.violations,
+            "layout": self.settings.layout,
+            "server_kind": getattr(getattr(self.model, "inner", self.model), "server", None),
             "output_tokens": float(tokens_out.mean()),
             "gpt4_input_tokens": float(np.mean([x.gpt4_in for x in q])),
             "gpt4_output_tokens": float(np.mean([x.gpt4_out for x in q])),
@@ -225,7 +242,10 @@ class LLMPolicy:
         }
         rt = self.runtime
         if rt.price_in is not None and rt.price_out is not None:
-            out["cost_usd"] = float((tokens_in.sum() * rt.price_in + tokens_out.sum() * rt.price_out) / 1e6)
+            cached = float(sum(x.reply.cached_tokens for x in q))
+            cached_price = rt.price_in if rt.price_cached_in is None else rt.price_cached_in
+            out["cost_usd"] = float(((tokens_in.sum() - cached) * rt.price_in + cached * cached_price
+                                     + tokens_out.sum() * rt.price_out) / 1e6)
         return out
 
     def close(self) -> None:
@@ -234,6 +254,19 @@ class LLMPolicy:
 
 
 def _new_model(settings: LLMSettings, runtime: Runtime) -> LanguageModel:
-    return make_model(settings.model, url=settings.url, api=settings.api, cache=runtime.cache,
+    return make_model(settings.model, url=settings.url, layout=settings.layout, server=settings.server,
+                      cache=runtime.cache,
                       threads=runtime.threads, requests_per_minute=runtime.requests_per_minute,
                       cache_reuse=SHIFT_CHUNK if settings.approximate else 0)
+
+
+_WARNED: set[str] = set()
+
+
+def _warn_once(model: LanguageModel, text: str) -> None:
+    """One warning per model and run: a server that ignores the constraint field is visible at once."""
+    if model.id in _WARNED:
+        return
+    _WARNED.add(model.id)
+    print(f"bench: warning: a reply broke the output constraint ({text.strip()[:60]!r}); does the server read its "
+          "constraint field? (--llm-server); counted in constraint_violations", file=sys.stderr)

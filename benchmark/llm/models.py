@@ -13,12 +13,15 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
+import sys
+import threading
 import time
-import urllib.error
-import urllib.request
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Protocol
+
+from benchmark.llm.prompt import LAYOUTS, split_prompt
 
 API_KEY_ENV = ("PROMPTWALK_LLM_API_KEY", "OPENAI_API_KEY")
 URL_ENV = "PROMPTWALK_LLM_URL"
@@ -38,10 +41,26 @@ class Sampling:
 
 @dataclass(frozen=True)
 class Constraint:
-    """How the answer is forced into shape: a GBNF grammar, a JSON schema, or nothing."""
+    """How the answer is forced into shape: the same rule as a GBNF grammar (llama.cpp), a regular
+    expression (vLLM, SGLang) and a JSON schema (OpenAI chat); or nothing."""
 
     grammar: str | None = None
     schema: dict | None = None
+    regex: str | None = None
+
+    def violated_by(self, text: str) -> bool:
+        """Whether a reply breaks the constraint (a server that ignored the field)."""
+        if self.regex is None:
+            return False
+        stripped = text.strip()
+        if self.schema is not None and stripped.startswith("{"):
+            try:
+                values = json.loads(stripped)["output"]
+                return not (isinstance(values, list) and len(values) == self.schema["schema"]["properties"]
+                            ["output"]["minItems"])
+            except (ValueError, KeyError, TypeError):
+                return True
+        return re.fullmatch(self.regex, stripped) is None
 
 
 @dataclass(frozen=True)
@@ -49,8 +68,10 @@ class Reply:
     text: str
     prompt_tokens: int  # counted by the model's own tokenizer (as the server reports it)
     completion_tokens: int
-    latency_s: float
-    cached: bool = False
+    cached_tokens: int = 0  # prompt tokens the server reused from its prefix cache (billed less by APIs)
+    latency_s: float = 0.0  # the answering request alone, without retry waits
+    retries: int = 0  # attempts before the one that answered
+    cached: bool = False  # from the on-disk reply cache
 
 
 class LanguageModel(Protocol):
@@ -123,93 +144,141 @@ class EmbeddedModel:
         latency = time.perf_counter() - start
         if "error" in result:
             raise LLMError(f"embedded model failed: {result['error']}")
-        usage = result.get("usage", {})
+        usage, timings = result.get("usage", {}), result.get("timings", {})
         return Reply(result["choices"][0]["text"], usage.get("prompt_tokens", 0), usage.get("completion_tokens", 0),
-                     latency)
+                     cached_tokens=int(timings.get("cache_n", 0) or 0), latency_s=latency)
 
     def close(self) -> None:
         self._server = None
 
 
-class OpenAIModel:
-    """Any OpenAI-compatible HTTP server. The API key is sent, never printed, logged or cached."""
+SERVER_KINDS = ("auto", "openai", "vllm", "sglang", "llamacpp")
 
-    def __init__(self, model: str, url: str | None = None, api_key: str | None = None, api: str = "completions",
-                 timeout_s: float = 120.0, retries: int = 4, backoff_s: float = 1.0,
+
+def identify_server(client, url: str) -> str:
+    """The serving stack behind an OpenAI-compatible URL, from what its /models reports (`owned_by`)."""
+    if "api.openai.com" in url:
+        return "openai"
+    try:
+        owners = {str(getattr(m, "owned_by", "")).lower() for m in client.with_options(max_retries=0, timeout=5.0)
+                  .models.list().data}
+    except Exception:  # noqa: BLE001 - a server without /models (or not up yet) says nothing either way
+        owners = set()
+    for kind, marks in (("llamacpp", ("llamacpp", "llama.cpp")), ("vllm", ("vllm",)), ("sglang", ("sglang",)),
+                        ("openai", ("openai", "system"))):
+        if any(mark in owner for owner in owners for mark in marks):
+            return kind
+    return "llamacpp"  # unknown: llama.cpp's field; a server that ignores it shows up as constraint violations
+
+
+def constraint_fields(kind: str, layout: str, constraint: Constraint) -> dict:
+    """Each serving stack's own documented field for constrained output, for the request body."""
+    if constraint.regex is None and constraint.grammar is None and constraint.schema is None:
+        return {}
+    if kind == "openai":  # only chat can be constrained, with a strict JSON schema
+        return {"response_format": {"type": "json_schema", "json_schema": constraint.schema}} if layout == "chat" else {}
+    if kind == "vllm":  # vLLM >= 0.12 (guided_* removed)
+        return {"structured_outputs": {"regex": constraint.regex}}
+    if kind == "sglang":
+        return {"regex": constraint.regex}
+    return {"grammar": constraint.grammar}  # llama.cpp: GBNF
+
+
+class OpenAIModel:
+    """Any OpenAI-compatible server, through the official `openai` SDK: its retries (honouring
+    Retry-After) and timeouts, each server kind's own constraint field in `extra_body`. The API
+    key is sent, never printed, logged or cached."""
+
+    def __init__(self, model: str, url: str | None = None, api_key: str | None = None, layout: str = "completions",
+                 server: str = "auto", timeout_s: float = 120.0, retries: int = 4,
                  requests_per_minute: float | None = None) -> None:
-        if api not in ("completions", "chat"):
-            raise ValueError(f"unknown api '{api}'; valid: chat, completions")
+        import openai
+
+        if layout not in LAYOUTS:
+            raise ValueError(f"unknown layout '{layout}'; valid: {', '.join(LAYOUTS)}")
+        if server not in SERVER_KINDS:
+            raise ValueError(f"unknown server kind '{server}'; valid: {', '.join(SERVER_KINDS)}")
         if requests_per_minute is not None and not requests_per_minute > 0:
             raise ValueError(f"requests per minute must be > 0, got {requests_per_minute}")
-        self.model, self.api, self.timeout_s, self.retries, self.backoff_s = model, api, timeout_s, retries, backoff_s
+        self.model, self.layout, self.retries = model, layout, retries
         self.min_interval_s = 60.0 / requests_per_minute if requests_per_minute else 0.0
-        self._next_request_at = 0.0
+        self._next_request_at, self._lock = 0.0, threading.Lock()
         self.url = (url or os.environ.get(URL_ENV) or "https://api.openai.com/v1").rstrip("/")
-        self._key = api_key or next((os.environ[k] for k in API_KEY_ENV if os.environ.get(k)), None)
-        self.id = f"openai:{self.url}:{model}:{api}"
+        key = api_key or next((os.environ[k] for k in API_KEY_ENV if os.environ.get(k)), None)
+        self._client = openai.OpenAI(base_url=self.url, api_key=key or "none", max_retries=retries, timeout=timeout_s)
+        self.server = identify_server(self._client, self.url) if server == "auto" else server
+        if server == "auto":
+            print(f"bench: {self.url} identified as a {self.server} server (set --llm-server to choose)",
+                  file=sys.stderr)
+        self.id = f"openai:{self.url}:{model}:{layout}:{self.server}"
 
     @classmethod
     def from_spec(cls, name: str | None, url: str | None = None, api_key: str | None = None,
-                  api: str = "completions", requests_per_minute: float | None = None, **_: object) -> OpenAIModel:
-        return cls(name, url=url, api_key=api_key, api=api, requests_per_minute=requests_per_minute)
+                  layout: str = "completions", server: str = "auto", requests_per_minute: float | None = None,
+                  **_: object) -> OpenAIModel:
+        return cls(name, url=url, api_key=api_key, layout=layout, server=server,
+                   requests_per_minute=requests_per_minute)
 
     def __repr__(self) -> str:  # never show the key
-        return f"OpenAIModel(model={self.model!r}, url={self.url!r}, api={self.api!r})"
-
-    def _body(self, prompt: str, sampling: Sampling, constraint: Constraint) -> dict:
-        body = {"model": self.model, "temperature": sampling.temperature, "max_tokens": sampling.max_tokens,
-                "seed": sampling.seed}
-        if self.api == "chat":
-            body["messages"] = [{"role": "user", "content": prompt}]
-            if constraint.schema:
-                body["response_format"] = {"type": "json_schema", "json_schema": constraint.schema}
-        else:
-            body["prompt"], body["stop"] = prompt, ["\n"]
-            if constraint.grammar:
-                body["grammar"] = constraint.grammar  # llama.cpp server extension
-        return body
+        return f"OpenAIModel(model={self.model!r}, url={self.url!r}, layout={self.layout!r}, server={self.server!r})"
 
     def complete(self, prompt: str, sampling: Sampling, constraint: Constraint) -> Reply:
-        path = "/chat/completions" if self.api == "chat" else "/completions"
-        data = json.dumps(self._body(prompt, sampling, constraint)).encode()
-        headers = {"Content-Type": "application/json"}
-        if self._key:
-            headers["Authorization"] = f"Bearer {self._key}"
+        import openai
+
+        body = {"model": self.model, "temperature": sampling.temperature, "max_tokens": sampling.max_tokens,
+                "seed": sampling.seed}
+        extra = constraint_fields(self.server, self.layout, constraint)
         self._respect_rate_limit()
-        start = time.perf_counter()
-        for attempt in range(self.retries + 1):
-            request = urllib.request.Request(self.url + path, data=data, headers=headers, method="POST")
-            try:
-                with urllib.request.urlopen(request, timeout=self.timeout_s) as response:
-                    result = json.loads(response.read())
-                break
-            except urllib.error.HTTPError as err:
-                retryable = err.code == 429 or err.code >= 500
-                if not retryable or attempt == self.retries:
-                    detail = err.read()[:200].decode(errors="replace").replace("\n", " ")
-                    raise LLMError(f"{self.url}{path} answered HTTP {err.code} after {attempt + 1} "
-                                   f"attempt(s): {detail}") from None
-            except (urllib.error.URLError, TimeoutError, ConnectionError) as err:
-                if attempt == self.retries:
-                    reason = getattr(err, "reason", err)
-                    raise LLMError(f"cannot reach {self.url} after {attempt + 1} attempt(s): {reason}; "
-                                   f"is the server running? (set --llm-url or {URL_ENV})") from None
-            time.sleep(self.backoff_s * 2**attempt)
-        choice = result["choices"][0]
-        text = choice["message"]["content"] if self.api == "chat" else choice["text"]
-        usage = result.get("usage") or {}
-        return Reply(text or "", usage.get("prompt_tokens", 0), usage.get("completion_tokens", 0),
-                     time.perf_counter() - start)
+        try:
+            if self.layout == "chat":
+                system, user = split_prompt(prompt)
+                messages = ([{"role": "system", "content": system}] if system else []) + \
+                    [{"role": "user", "content": user}]
+                format_ = extra.pop("response_format", None)
+                raw = self._client.chat.completions.with_raw_response.create(
+                    messages=messages, **body, **({"response_format": format_} if format_ else {}),
+                    extra_body=extra or None)
+                result = raw.parse()
+                text = result.choices[0].message.content
+            else:
+                raw = self._client.completions.with_raw_response.create(prompt=prompt, stop=["\n"], **body,
+                                                                         extra_body=extra or None)
+                result = raw.parse()
+                text = result.choices[0].text
+        except openai.APIStatusError as err:
+            detail = str(err.message)[:200].replace("\n", " ")
+            raise LLMError(f"{self.url} answered HTTP {err.status_code} after {self.retries + 1} attempt(s): "
+                           f"{detail}") from None
+        except openai.APIConnectionError:
+            raise LLMError(f"cannot reach {self.url} after {self.retries + 1} attempt(s); is the server running? "
+                           f"(set --llm-url or {URL_ENV})") from None
+        return Reply(text or "", *_usage(result), latency_s=raw.elapsed.total_seconds(),
+                     retries=raw.retries_taken)
 
     def _respect_rate_limit(self) -> None:
-        """Space requests at least `min_interval_s` apart (a sweep splits its limit over its workers)."""
-        now = time.monotonic()
-        if now < self._next_request_at:
-            time.sleep(self._next_request_at - now)
-        self._next_request_at = max(now, self._next_request_at) + self.min_interval_s
+        """Space requests at least `min_interval_s` apart, over every thread using this model."""
+        with self._lock:
+            now = time.monotonic()
+            wait_s = max(0.0, self._next_request_at - now)
+            self._next_request_at = max(now, self._next_request_at) + self.min_interval_s
+        if wait_s:
+            time.sleep(wait_s)
 
     def close(self) -> None:
-        pass
+        self._client.close()
+
+
+def _usage(result) -> tuple[int, int, int]:
+    """(prompt, completion, cached prompt) tokens: OpenAI's and vLLM's `prompt_tokens_details`, or
+    llama.cpp's own `timings` (prompt_n newly evaluated of prompt_tokens; cache_n reused)."""
+    usage = result.usage
+    prompt, completion = (usage.prompt_tokens, usage.completion_tokens) if usage else (0, 0)
+    details = getattr(usage, "prompt_tokens_details", None) if usage else None
+    cached = getattr(details, "cached_tokens", None) if details else None
+    timings = (result.model_extra or {}).get("timings") or {}
+    if not cached and timings.get("cache_n") is not None:
+        cached = timings["cache_n"]
+    return prompt or 0, completion or 0, int(cached or 0)
 
 
 def cache_dir() -> Path:
@@ -264,15 +333,15 @@ def check_model_spec(spec: str) -> None:
         raise ValueError(f"model file '{name}' not found; pass a local .gguf path or use 'embedded'")
 
 
-def make_model(spec: str, url: str | None = None, api_key: str | None = None, api: str = "completions",
-               cache: bool = True, threads: int | None = None,
-               requests_per_minute: float | None = None, cache_reuse: int = 0) -> LanguageModel:
+def make_model(spec: str, url: str | None = None, api_key: str | None = None, layout: str = "completions",
+               cache: bool = True, threads: int | None = None, requests_per_minute: float | None = None,
+               cache_reuse: int = 0, server: str = "auto") -> LanguageModel:
     """A model from its spec (see MODEL_FORMS), wrapped in the on-disk reply cache unless `cache` is off."""
     from sims import load_entry_point
 
     check_model_spec(spec)
     kind, _, name = spec.partition(":")
     cls = load_entry_point(MODELS[kind])
-    model = cls.from_spec(name or None, url=url, api_key=api_key, api=api, threads=threads,
-                          requests_per_minute=requests_per_minute, cache_reuse=cache_reuse)
+    model = cls.from_spec(name or None, url=url, api_key=api_key, layout=layout, threads=threads,
+                          requests_per_minute=requests_per_minute, cache_reuse=cache_reuse, server=server)
     return CachedModel(model) if cache and getattr(cls, "cacheable", True) else model

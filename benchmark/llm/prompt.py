@@ -18,6 +18,8 @@ from benchmark.llm.prompt_inputs import DEFAULT_OBSERVATION, describe, select
 from robots import LEGS, Robot
 
 PARTS = ("task", "io", "joints", "pipeline", "illustration")
+LAYOUTS = ("completions", "chat")  # one text; or the description as the system message (the paper's code)
+HISTORY_HEADER = "Recent inputs and the outputs that kept the robot walking:"
 ROLE_NAMES = ("hip abduction", "thigh", "calf")
 
 
@@ -74,8 +76,16 @@ def build_prompt(description: str, history: Sequence[tuple[np.ndarray, np.ndarra
     enc, idx = get_encoding(config.encoding), select(config.observation)
     lines = [description, ""] if description else []
     if history:
-        lines.append("Recent inputs and the outputs that kept the robot walking:")
+        lines.append(HISTORY_HEADER)
         lines += [format_pair(o, a, enc, idx) for o, a in history]
     lines.append(f"Input: {enc.encode(obs[idx])}")
     lines.append("Output:")
     return "\n".join(lines)
+
+
+def split_prompt(prompt: str) -> tuple[str, str]:
+    """(description, history and current input): the chat layout's system and user messages, as the
+    paper's code sent them."""
+    starts = [i for i in (prompt.find(HISTORY_HEADER), prompt.find("Input: ")) if i >= 0]
+    cut = min(starts) if starts else len(prompt)
+    return prompt[:cut].strip(), prompt[cut:]

@@ -70,3 +70,15 @@ def json_schema(enc: Encoding, count: int = 12) -> dict:
     return {"name": "joint_targets", "strict": True, "schema": {
         "type": "object", "additionalProperties": False, "required": ["output"],
         "properties": {"output": {"type": "array", "items": item, "minItems": count, "maxItems": count}}}}
+
+
+def reply_regex(enc: Encoding, count: int = 12) -> str:
+    """The grammar's rule as a regular expression (vLLM's and SGLang's constraint field)."""
+    if enc.integer_range is None:
+        whole = len(str(int(max(abs(enc.low), abs(enc.high)) + enc.offset)))
+        sign = "-?" if enc.low + enc.offset < 0 else ""
+        num = f"{sign}[0-9]{{1,{whole}}}\\.[0-9]{{{enc.decimals}}}"
+    else:
+        low, high = enc.integer_range
+        num = ("-?" if low < 0 else "") + f"[0-9]{{1,{len(str(high))}}}"
+    return f"\\[{num}(, {num}){{{count - 1}}}\\]"

@@ -3,8 +3,6 @@ embedded model's own tokenizer (llama.cpp's /tokenize endpoint on loopback)."""
 
 from __future__ import annotations
 
-import json
-import urllib.request
 from functools import cache
 
 TOKENIZERS = ("gpt-4", "embedded")
@@ -22,9 +20,8 @@ def gpt4_tokens(text: str) -> int:
 
 
 def server_tokens(base_url: str, text: str) -> int:
-    """Tokens of `text` for the model a llama.cpp server serves (its /tokenize endpoint)."""
-    root = base_url.removesuffix("/v1")
-    request = urllib.request.Request(root + "/tokenize", data=json.dumps({"content": text}).encode(),
-                                     headers={"Content-Type": "application/json"}, method="POST")
-    with urllib.request.urlopen(request, timeout=60) as response:
-        return len(json.loads(response.read())["tokens"])
+    """Tokens of `text` for the model a llama.cpp server serves (its /tokenize endpoint, through the SDK's client)."""
+    import openai
+
+    with openai.OpenAI(base_url=base_url.removesuffix("/v1"), api_key="none", max_retries=1) as client:
+        return len(client.post("/tokenize", body={"content": text}, cast_to=object)["tokens"])

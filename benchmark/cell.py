@@ -12,7 +12,9 @@ keeps engines and models alive between calls (a sweep worker holds one).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import threading
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -151,12 +153,15 @@ class Runtime:
 
 
 class Resources:
-    """Engines and models kept between trials (a sweep worker's state); closed together."""
+    """Engines and models kept between trials (a sweep worker's state); closed together. Threads that
+    run trials side by side each hold their own Resources (engines are not thread-safe) over one
+    `shared` model table, so they talk to a server through one client and one rate limit."""
 
-    def __init__(self, runtime: Runtime = Runtime()) -> None:
+    def __init__(self, runtime: Runtime = Runtime(), shared: SharedModels | None = None) -> None:
         self.runtime = runtime
         self.sims: dict[tuple, Simulator] = {}
-        self.models: dict[tuple, Any] = {}
+        self.shared = shared
+        self.models: dict[tuple, Any] = shared.models if shared else {}
 
     def sim(self, cell: CellSpec, robot: Robot, terrain: Terrain) -> Simulator:
         key = (cell.sim, cell.robot, cell.terrain, cell.terrain_seed, cell.engine)
@@ -167,17 +172,32 @@ class Resources:
         return self.sims[key]
 
     def model(self, key: tuple, factory: Callable[[], Any]):
-        """A model kept for the life of these resources, built on first use."""
-        if key not in self.models:
-            self.models[key] = factory()
-        return self.models[key]
+        """A model kept for the life of these resources (or of the shared table), built on first use."""
+        with self.shared.lock if self.shared else contextlib.nullcontext():
+            if key not in self.models:
+                self.models[key] = factory()
+            return self.models[key]
 
     def close(self) -> None:
         for sim in self.sims.values():
             sim.close()
+        self.sims.clear()
+        if self.shared is None:  # a shared table is closed by its owner
+            for model in self.models.values():
+                model.close()
+            self.models.clear()
+
+
+@dataclass
+class SharedModels:
+    """Models shared by threads running trials side by side."""
+
+    models: dict = field(default_factory=dict)
+    lock: threading.Lock = field(default_factory=threading.Lock)
+
+    def close(self) -> None:
         for model in self.models.values():
             model.close()
-        self.sims.clear()
         self.models.clear()
 
 

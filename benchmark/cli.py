@@ -141,10 +141,16 @@ def build_parser() -> argparse.ArgumentParser:
                        help="override a setting in every cell, e.g. history_mode=block model=openai:gpt-4o")
     sweep.add_argument("--only", nargs="+", action="extend", default=[], metavar="KEY=VALUE",
                        help="run only the cells matching every KEY=VALUE given, e.g. controller=rl sim=mujoco")
+    sweep.add_argument("--concurrency", type=_number(int, True), default=1, metavar="N",
+                       help="remote LLM servers: up to N trials in flight as threads of one process, sharing one "
+                            "client and rate limit (with --workers 1; default 1)")
     sweep.add_argument("--rate-limit", type=_number(float, True), default=None, metavar="RPM",
                        help="remote LLM servers: at most RPM queries a minute over all workers")
     sweep.add_argument("--threads", type=_number(int, True), default=None,
                        help="llama.cpp threads per worker (default: cores / workers)")
+    for name in ("price_in", "price_out", "price_cached_in"):  # with --dry-run: the estimated bill
+        sweep.add_argument("--" + name.replace("_", "-"), type=_number(float), default=None, metavar="USD",
+                           help=f"{name.replace('_', ' ')} per 1M tokens: --dry-run estimates the bill")
 
     report = sub.add_parser("report", help="tables and figures from a results store -> reports/",
                             description=_doc("benchmark.report"), formatter_class=fmt)

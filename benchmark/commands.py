@@ -225,11 +225,13 @@ def cmd_sweep(args, overrides_text: list[str], only_text: list[str]) -> int:
             shown = {k: params[k] for k in [*experiment.axes, *overrides] if k in params}
             print(f"  {t.cell_id}  {t.cell.label():<32} {json.dumps(shown)}  seeds {[x.seed for x in group]}"
                   f"  missing {sum(x.id not in done for x in group)}")
+        if args.price_in is not None and args.price_out is not None:
+            _print_cost(cells, args)
         return 0
     try:
         outcome = run_sweep(trials, store, workers=args.workers, executor=args.executor, address=args.ray_address,
                             requests_per_minute=args.rate_limit, threads=args.threads,
-                            command=" ".join(["bench", *args.argv]))
+                            command=" ".join(["bench", *args.argv]), concurrency=args.concurrency)
     except (TrialError, LLMError) as err:
         print(f"bench: error: {err} ({len(store.done_ids())} trial(s) stored in {store.root}; "
               "run the same command again to resume)", file=sys.stderr)
@@ -242,6 +244,25 @@ def cmd_sweep(args, overrides_text: list[str], only_text: list[str]) -> int:
           f"{outcome.total} in the grid; {outcome.wall_s:.1f} s with {args.workers} {args.executor} worker(s); "
           f"results in {store.root}")
     return 0
+
+
+def _print_cost(cells: dict, args) -> None:
+    """The estimated bill of the LLM cells (server models only), per history mode."""
+    from benchmark.llm.cost import MODES, estimate
+
+    llm = [(g[0].cell, len(g)) for g in cells.values()
+           if g[0].cell.policy == "llm" and g[0].cell.settings.model.startswith("openai")]
+    if not llm:
+        print("cost: no cell queries a server model (set model=openai:MODEL)")
+        return
+    print(f"estimated cost (GPT-4 tokens of real prompts, no trial ending early; cached: prefixes of >= 1024 "
+          f"tokens at ${args.price_cached_in if args.price_cached_in is not None else args.price_in}/1M):")
+    print(f"  {'history mode':<13} {'queries':>8} {'input tokens':>13} {'cached':>12} {'output':>10} {'USD':>9}")
+    for mode in MODES:
+        e = estimate([c for c, _ in llm], [n for _, n in llm], mode, args.price_in, args.price_out,
+                     args.price_cached_in)
+        print(f"  {mode:<13} {e['queries']:>8,} {e['input_tokens']:>13,} {e['cached_input_tokens']:>12,} "
+              f"{e['output_tokens']:>10,} {e['usd']:>9,.2f}")
 
 
 def key_values(items: list[str], option: str, form: str) -> dict[str, str]:

@@ -22,6 +22,7 @@ import platform
 import socket
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Iterator
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -30,7 +31,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from benchmark.cell import Resources, Runtime, TrialHooks, run_cell
+from benchmark.cell import Resources, Runtime, SharedModels, TrialHooks, run_cell
 from benchmark.experiment import Trial
 from benchmark.interrupt import Interrupted, Interruption, ignore_sigint
 from benchmark.store import ResultStore
@@ -60,10 +61,10 @@ class _Trajectory(TrialHooks):
 
 
 class _Worker:
-    """What one process keeps between trials: engines and models, in one Resources."""
+    """What one process (or thread) keeps between trials: engines and models, in one Resources."""
 
-    def __init__(self, runtime: Runtime) -> None:
-        self.resources = Resources(runtime)
+    def __init__(self, runtime: Runtime, shared: SharedModels | None = None) -> None:
+        self.resources = Resources(runtime, shared)
 
     def run(self, trial: Trial) -> dict:
         cell, trajectory = trial.cell, _Trajectory()
@@ -120,6 +121,47 @@ def _serial(todo: list[Trial], runtime: Runtime, stop: Interruption) -> Iterator
         if _WORKER is not None:
             _WORKER.close()
             _WORKER = None
+
+
+def _threads(todo: list[Trial], runtime: Runtime, concurrency: int, stop: Interruption) -> Iterator[dict]:
+    """Up to `concurrency` trials in flight in this process, for remote LLM servers: each thread has its
+    own engines, all share the models (one client, one rate limit). After the first Ctrl-C no trial
+    starts and those in flight get the grace period."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    shared, local = SharedModels(), threading.local()
+    workers: list[_Worker] = []
+
+    def run(trial: Trial) -> dict:
+        if not hasattr(local, "worker"):
+            local.worker = _Worker(runtime, shared)
+            workers.append(local.worker)
+        try:
+            return local.worker.run(trial)
+        except Exception as err:  # one line that names the trial
+            raise TrialError(f"trial {trial.id} ({trial.cell.label()} seed {trial.seed}) failed: "
+                             f"{type(err).__name__}: {err}") from None
+
+    pool = ThreadPoolExecutor(max_workers=concurrency, thread_name_prefix="trial")
+    queue, pending, deadline = list(todo), set(), None
+    try:
+        while queue or pending:
+            if stop.requested and deadline is None:
+                queue, deadline = [], time.monotonic() + stop.grace_s
+            if deadline is not None and time.monotonic() > deadline:
+                break
+            while queue and len(pending) < concurrency:
+                pending.add(pool.submit(run, queue.pop(0)))
+            done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+            for future in done:
+                yield future.result()
+        if stop.requested:
+            raise Interrupted
+    finally:
+        pool.shutdown(wait=not stop.requested, cancel_futures=True)
+        for worker in workers:
+            worker.close()
+        shared.close()
 
 
 def _processes(todo: list[Trial], runtime: Runtime, workers: int, stop: Interruption) -> Iterator[dict]:
@@ -215,25 +257,29 @@ class SweepOutcome:
 
 def run_sweep(trials: list[Trial], store: ResultStore, workers: int = 1, executor: str = "local",
               address: str | None = None, requests_per_minute: float | None = None,
-              threads: int | None = None, command: str | None = None) -> SweepOutcome:
+              threads: int | None = None, command: str | None = None, concurrency: int = 1) -> SweepOutcome:
     """Run the trials not yet in `store`, writing each as it finishes. Raises on the first failed trial
     (what finished before is stored)."""
     if executor not in EXECUTORS:
         raise ValueError(f"unknown executor '{executor}'; valid: {', '.join(EXECUTORS)}")
+    if concurrency > 1 and (workers > 1 or executor != "local"):
+        raise ValueError("--concurrency runs trials as threads in one local process: use it with --workers 1")
     done = store.done_ids()
     todo = [t for t in trials if t.id not in done]
     runtime = Runtime(threads=threads or max(1, (os.cpu_count() or 1) // workers),
                       requests_per_minute=None if requests_per_minute is None else requests_per_minute / workers)
     meta = run_metadata(command)
     start = time.perf_counter()
-    ran = 0
+    ran = queries = 0
     bar = tqdm(total=len(trials), initial=len(trials) - len(todo), desc=trials[0].experiment if trials else "sweep",
                unit="trial", file=sys.stderr, disable=None)
-    with Interruption(alarm=executor == "local" and workers == 1) as stop:
+    with Interruption(alarm=executor == "local" and workers == 1 and concurrency == 1) as stop:
         if not todo:
             rows: Iterator[dict] = iter(())
         elif executor == "ray":
             rows = _ray(todo, runtime, workers, address, stop)
+        elif concurrency > 1:
+            rows = _threads(todo, runtime, concurrency, stop)
         elif workers == 1:
             rows = _serial(todo, runtime, stop)
         else:
@@ -246,6 +292,9 @@ def run_sweep(trials: list[Trial], store: ResultStore, workers: int = 1, executo
                 if bar.disable:
                     print(f"bench: {len(trials) - len(todo) + ran}/{len(trials)} trials ({ran} run now, "
                           f"{time.perf_counter() - start:.0f} s)", file=sys.stderr, flush=True)
+                queries += int(row.get("queries") or 0)
+                if queries:
+                    bar.set_postfix_str(f"{queries / (time.perf_counter() - start):.2f} LLM queries/s")
         except KeyboardInterrupt:  # a second Ctrl-C, or the grace period ran out in this process
             raise Interrupted from None
         finally:

@@ -305,3 +305,28 @@ def test_server_dying_mid_run_keeps_finished_trials_and_never_prints_the_key(emb
     assert [t["seed"] for t in result["trials"]] == [0] and result["trials"][0]["queries"] == 3
     assert "answered HTTP 503" in err and "1 finished trial(s)" in err
     assert SECRET not in out + err and proxy.auth[0] == f"Bearer {SECRET}"
+
+
+def test_concurrency_against_one_server_with_two_slots_is_faster(tmp_path, monkeypatch):
+    """Four LLM trials against a llama.cpp server with two parallel slots: two in flight beat one."""
+    from benchmark.experiment import load_experiment
+    from benchmark.store import ResultStore
+    from benchmark.sweep import run_sweep
+
+    walls = {}
+    for concurrency in (1, 2):  # a fresh server each time: no prompt cached from the other run
+        server = EmbeddedModel(threads=2, context=8192, parallel=2)
+        try:
+            path = tmp_path / f"four{concurrency}.toml"
+            path.write_text(f'name = "four"\nseeds = [0, 1, 2, 3]\n[fixed]\npolicy = "llm"\nmodel = "openai:gemma"\n'
+                            f'url = "{server.url}"\nserver = "llamacpp"\nhistory = 5\nhistory_mode = "block"\n'
+                            f'duration = 2.6\nllm_after = 2.0\n')
+            monkeypatch.setenv("PROMPTWALK_CACHE", str(tmp_path / f"cache{concurrency}"))  # every reply live
+            trials = load_experiment(str(path)).trials()
+            outcome = run_sweep(trials, ResultStore(tmp_path / f"store{concurrency}"), concurrency=concurrency)
+            assert outcome.ran == 4
+            walls[concurrency] = outcome.wall_s
+        finally:
+            server.close()
+    print(f"4 LLM trials: concurrency 1 {walls[1]:.1f} s, concurrency 2 {walls[2]:.1f} s")
+    assert walls[2] < walls[1], walls

@@ -91,7 +91,7 @@ class EmbeddedModel:
     """A local GGUF model run in-process by llama.cpp (the prebuilt `xllamacpp` wheel)."""
 
     def __init__(self, path: str | None = None, threads: int | None = None, context: int = 16384,
-                 listen_port: int | None = None, cache_reuse: int = 0) -> None:
+                 listen_port: int | None = None, cache_reuse: int = 0, parallel: int = 1) -> None:
         """`cache_reuse` > 0 turns on llama.cpp's KV-cache shifting (chunks of at least that many tokens
         are moved to their new positions instead of recomputed): fast, and an approximation."""
         import xllamacpp
@@ -109,7 +109,7 @@ class EmbeddedModel:
         params = xllamacpp.CommonParams()
         params.model.path = str(weights)
         params.n_ctx = context
-        params.n_parallel = 1
+        params.n_parallel = parallel  # slots: concurrent requests decode in one batch
         params.warmup = False
         params.verbosity = -1  # llama.cpp logs every request otherwise
         params.cpuparams.n_threads = params.cpuparams_batch.n_threads = threads or default_threads()

@@ -32,6 +32,7 @@ class _TextModel:
 
     kind = ""
     cacheable = False  # answering is cheaper than a cache lookup
+    obeys_constraint = False  # writes its answer itself: no server field to ignore, no violation to count
 
     def __init__(self) -> None:
         self.id = f"reference:{self.kind}"

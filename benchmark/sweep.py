@@ -123,6 +123,36 @@ def _serial(todo: list[Trial], runtime: Runtime, stop: Interruption) -> Iterator
             _WORKER = None
 
 
+class _InFlight:
+    """At most `limit` trials in flight; after the first Ctrl-C no trial starts and those in flight get
+    the grace period. `submit(trial)` starts one, `wait_some(pending)` returns (done, still pending),
+    `result(done)` gives its row. The one loop of every executor."""
+
+    def __init__(self, submit, wait_some, result, limit: int, stop: Interruption) -> None:
+        self.submit, self.wait_some, self.result, self.limit, self.stop = submit, wait_some, result, limit, stop
+        self.pending: list = []
+
+    def rows(self, todo: list[Trial]) -> Iterator[dict]:
+        queue, deadline = list(todo), None
+        while queue or self.pending:
+            if self.stop.requested and deadline is None:
+                queue, deadline = [], time.monotonic() + self.stop.grace_s
+            if deadline is not None and time.monotonic() > deadline:
+                break
+            while queue and len(self.pending) < self.limit:
+                self.pending.append(self.submit(queue.pop(0)))
+            done, self.pending = self.wait_some(self.pending)
+            for item in done:
+                yield self.result(item)
+        if self.stop.requested:
+            raise Interrupted
+
+
+def _wait_futures(pending: list) -> tuple[list, list]:
+    done, rest = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+    return list(done), list(rest)
+
+
 def _threads(todo: list[Trial], runtime: Runtime, concurrency: int, stop: Interruption) -> Iterator[dict]:
     """Up to `concurrency` trials in flight in this process, for remote LLM servers: each thread has its
     own engines, all share the models (one client, one rate limit). After the first Ctrl-C no trial
@@ -143,20 +173,9 @@ def _threads(todo: list[Trial], runtime: Runtime, concurrency: int, stop: Interr
                              f"{type(err).__name__}: {err}") from None
 
     pool = ThreadPoolExecutor(max_workers=concurrency, thread_name_prefix="trial")
-    queue, pending, deadline = list(todo), set(), None
     try:
-        while queue or pending:
-            if stop.requested and deadline is None:
-                queue, deadline = [], time.monotonic() + stop.grace_s
-            if deadline is not None and time.monotonic() > deadline:
-                break
-            while queue and len(pending) < concurrency:
-                pending.add(pool.submit(run, queue.pop(0)))
-            done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
-            for future in done:
-                yield future.result()
-        if stop.requested:
-            raise Interrupted
+        yield from _InFlight(lambda trial: pool.submit(run, trial), _wait_futures, lambda f: f.result(),
+                             concurrency, stop).rows(todo)
     finally:
         pool.shutdown(wait=not stop.requested, cancel_futures=True)
         for worker in workers:
@@ -177,20 +196,9 @@ def _processes(todo: list[Trial], runtime: Runtime, workers: int, stop: Interrup
         pool.shutdown(wait=False, cancel_futures=True)
 
     stop.on_second = end_workers
-    queue, pending, deadline = list(todo), set(), None
     try:
-        while queue or pending:
-            if stop.requested and deadline is None:
-                queue, deadline = [], time.monotonic() + stop.grace_s
-            if deadline is not None and time.monotonic() > deadline:
-                break
-            while queue and len(pending) < workers:
-                pending.add(pool.submit(run_in_worker, queue.pop(0), runtime))
-            done, pending = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
-            for future in done:
-                yield future.result()
-        if stop.requested:
-            raise Interrupted
+        yield from _InFlight(lambda trial: pool.submit(run_in_worker, trial, runtime), _wait_futures,
+                             lambda f: f.result(), workers, stop).rows(todo)
     finally:
         end_workers()
 
@@ -204,25 +212,19 @@ def _ray(todo: list[Trial], runtime: Runtime, workers: int, address: str | None,
         local = {"num_cpus": workers} if address is None else {}
         ray.init(address=address, include_dashboard=False, log_to_driver=False, logging_level="ERROR", **local)
     task = ray.remote(num_cpus=1, max_retries=0)(run_in_worker)
-    queue, pending, deadline = list(todo), [], None
-    try:
-        while queue or pending:
-            if stop.requested and deadline is None:
-                queue, deadline = [], time.monotonic() + stop.grace_s
-            if deadline is not None and time.monotonic() > deadline:
-                break
-            while queue and len(pending) < workers:  # at most `workers` in flight: a kill loses no more
-                pending.append(task.remote(queue.pop(0), runtime))
-            done, pending = ray.wait(pending, num_returns=1, timeout=0.2)
-            for ref in done:
-                try:
-                    yield ray.get(ref)
-                except ray.exceptions.RayTaskError as err:
-                    raise err.as_instanceof_cause() from None
-        if stop.requested:
-            raise Interrupted
+
+    def result(ref):
+        try:
+            return ray.get(ref)
+        except ray.exceptions.RayTaskError as err:
+            raise err.as_instanceof_cause() from None
+
+    flight = _InFlight(lambda trial: task.remote(trial, runtime),
+                       lambda pending: ray.wait(pending, num_returns=1, timeout=0.2), result, workers, stop)
+    try:  # at most `workers` in flight: a kill loses no more
+        yield from flight.rows(todo)
     finally:
-        for ref in pending:
+        for ref in flight.pending:
             ray.cancel(ref, force=True)
 
 

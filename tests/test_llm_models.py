@@ -307,26 +307,49 @@ def test_server_dying_mid_run_keeps_finished_trials_and_never_prints_the_key(emb
     assert SECRET not in out + err and proxy.auth[0] == f"Bearer {SECRET}"
 
 
-def test_concurrency_against_one_server_with_two_slots_is_faster(tmp_path, monkeypatch):
-    """Four LLM trials against a llama.cpp server with two parallel slots: two in flight beat one."""
+class SlowServer(CannedServer):
+    """A remote server's situation: every answer takes `delay_s`, whatever else is in flight."""
+
+    def __init__(self, delay_s: float) -> None:
+        self.delay_s = delay_s
+        super().__init__(owned_by="vllm")
+
+    def answer(self, path, body, headers):
+        if body is not None:
+            time.sleep(self.delay_s)
+        return super().answer(path, body, headers)
+
+
+def _four_trials(tmp_path, url: str, name: str):
     from benchmark.experiment import load_experiment
+
+    path = tmp_path / f"{name}.toml"
+    path.write_text(f'name = "{name}"\nseeds = [0, 1, 2, 3]\n[fixed]\npolicy = "llm"\nmodel = "openai:m"\n'
+                    f'url = "{url}"\nhistory = 5\nduration = 2.3\nllm_after = 2.0\n')
+    return load_experiment(str(path)).trials()
+
+
+def test_concurrency_keeps_trials_in_flight_and_the_rate_limit_holds_across_them(tmp_path, monkeypatch):
+    """Four LLM trials (12 queries) against a server answering in 0.3 s: two in flight take about half the
+    time; with a rate limit, requests stay spaced over both threads."""
     from benchmark.store import ResultStore
     from benchmark.sweep import run_sweep
 
+    server = SlowServer(0.3)
     walls = {}
-    for concurrency in (1, 2):  # a fresh server each time: no prompt cached from the other run
-        server = EmbeddedModel(threads=2, context=8192, parallel=2)
-        try:
-            path = tmp_path / f"four{concurrency}.toml"
-            path.write_text(f'name = "four"\nseeds = [0, 1, 2, 3]\n[fixed]\npolicy = "llm"\nmodel = "openai:gemma"\n'
-                            f'url = "{server.url}"\nserver = "llamacpp"\nhistory = 5\nhistory_mode = "block"\n'
-                            f'duration = 2.6\nllm_after = 2.0\n')
+    try:
+        for concurrency in (1, 2):
             monkeypatch.setenv("PROMPTWALK_CACHE", str(tmp_path / f"cache{concurrency}"))  # every reply live
-            trials = load_experiment(str(path)).trials()
+            trials = _four_trials(tmp_path, server.url, f"four{concurrency}")
             outcome = run_sweep(trials, ResultStore(tmp_path / f"store{concurrency}"), concurrency=concurrency)
             assert outcome.ran == 4
             walls[concurrency] = outcome.wall_s
-        finally:
-            server.close()
-    print(f"4 LLM trials: concurrency 1 {walls[1]:.1f} s, concurrency 2 {walls[2]:.1f} s")
-    assert walls[2] < walls[1], walls
+        assert walls[2] < 0.75 * walls[1], walls
+        server.arrivals.clear()
+        monkeypatch.setenv("PROMPTWALK_CACHE", str(tmp_path / "cache_limited"))
+        run_sweep(_four_trials(tmp_path, server.url, "limited"), ResultStore(tmp_path / "limited"), concurrency=2,
+                  requests_per_minute=300)  # one request per 0.2 s over both threads
+        gaps = [b - a for a, b in zip(server.arrivals, server.arrivals[1:])]
+        assert len(server.arrivals) == 12 and min(gaps) >= 0.19, gaps
+    finally:
+        server.close()

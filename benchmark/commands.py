@@ -431,18 +431,24 @@ def cmd_latency(args, threads: int | None) -> int:
     if args.json:
         print(json.dumps({"model": args.llm, "rows": rows}))
         return 0
-    print(f"{args.llm}: query latency, {args.queries} queries per cell, cache off; drift: replies against a cold "
-          "recompute of the same prompt")
-    print(f"{'history':>7} {'mode':>12} {'tokens':>7} {'first s':>8} {'mean s':>7} {'p95 s':>6} {'after 1st s':>11} "
-          f"{'same as cold':>12} {'|da|':>6} {'outcome':>8}")
+    lines = [f"{args.llm}: query latency, {args.queries} queries per cell, reply cache off; drift: each reply "
+             "against a cold recompute of the same prompt (identical fraction, mean |action difference|); "
+             "outcome: the shifted trial against the exact sliding one", "",
+             "| history | mode | prompt tokens | first (s) | mean (s) | p95 (s) | after the first (s) | "
+             "identical to cold | mean abs action diff | outcome |", "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         after = f"{r['latency_after_first_s']:.2f}" if r["latency_after_first_s"] is not None else "-"
         same = f"{r['identical_to_cold']:.2f}" if r.get("identical_to_cold") is not None else "-"
         diff = f"{r['action_diff_vs_cold']:.3f}" if r.get("action_diff_vs_cold") is not None else "-"
         changed = {True: "changed", False: "same"}.get(r.get("outcome_changed"), "-")
-        mode = r["mode"] + (" (approx)" if r["approximate"] else "")
-        print(f"{r['history']:>7} {mode:>12} {r['prompt_tokens']:>7.0f} {r['latency_first_s']:>8.2f} "
-              f"{r['latency_mean_s']:>7.2f} {r['latency_p95_s']:>6.2f} {after:>11} {same:>12} {diff:>6} {changed:>8}")
+        mode = r["mode"] + (" (approximate)" if r["approximate"] else "")
+        lines.append(f"| {r['history']} | {mode} | {r['prompt_tokens']:.0f} | {r['latency_first_s']:.2f} | "
+                     f"{r['latency_mean_s']:.2f} | {r['latency_p95_s']:.2f} | {after} | {same} | {diff} | {changed} |")
+    print("\n".join(lines))
+    if args.out:
+        Path(args.out).write_text(f"# LLM latency and drift by history mode\n\nMade with `bench {' '.join(args.argv)}` "
+                                  f"({threads or 'all'} threads, nothing else running).\n\n" + "\n".join(lines) + "\n")
+        print(f"written to {args.out}", file=sys.stderr)
     return 0
 
 

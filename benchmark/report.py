@@ -21,6 +21,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from benchmark.experiment import ExperimentError, load_experiment
+
 FORMATS = ("md", "html", "csv")
 METRICS = {  # column in the store -> (heading, aggregation, digits)
     "nwt": ("NWT", "mean", 3),
@@ -209,8 +211,6 @@ def trajectory_figure(frame: pd.DataFrame, path: Path) -> Path | None:
 
 
 def _title_and_command(name: str, frame: pd.DataFrame) -> tuple[str, list[str]]:
-    from benchmark.experiment import ExperimentError, load_experiment
-
     try:
         title = load_experiment(name).title
     except ExperimentError:

@@ -11,10 +11,9 @@ from __future__ import annotations
 
 import sys
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
-
 import numpy as np
 
+from benchmark.cell import CellSpec, Resources, Runtime
 from benchmark.llm.encodings import DEFAULT_ENCODING, ENCODINGS, get_encoding
 from benchmark.llm.models import (MODEL_FORMS, SERVER_KINDS, Constraint, LanguageModel, Reply, Sampling,
                                    check_model_spec, make_model)
@@ -29,8 +28,6 @@ from benchmark.settings import SettingError, setting
 from robots import Robot
 from sims.base import PhysicsConfig, RobotState
 
-if TYPE_CHECKING:
-    from benchmark.cell import CellSpec, Resources, Runtime
 
 HISTORY_MODES = ("auto", "sliding", "block", "shifted")
 APPROXIMATE_MODES = ("shifted",)
@@ -139,8 +136,6 @@ class LLMPolicy:
 
     def __init__(self, robot: Robot, settings: LLMSettings = LLMSettings(), runtime: Runtime | None = None,
                  model: LanguageModel | None = None, seed_policy=None) -> None:
-        from benchmark.cell import Runtime
-
         self.robot, self.settings, self.runtime = robot, settings, runtime or Runtime()
         self.seed_policy = seed_policy or SeedPolicy(robot)
         self._owns_model = model is None

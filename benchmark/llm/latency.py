@@ -54,12 +54,14 @@ def _drift(policy) -> dict:
 
 def measure(model_spec: str, histories: list[int], modes: list[str], queries: int, threads: int | None = None,
             url: str | None = None, drift: bool = True) -> list[dict]:
-    """One row per (history, mode): latency of `queries` live queries after the seed policy filled the history."""
-    resources = Resources(Runtime(threads=threads, cache=False))
+    """One row per (history, mode): latency of `queries` live queries after the seed policy filled the history.
+    Every cell loads its own model, so none starts from what another cell (or a cold recompute) left in
+    llama.cpp's cache: a shifted cell that followed another's cold recomputes measured 27 s instead of 2 s."""
     rows = []
-    try:
-        cells = [(h, m) for h in histories for m in modes]
-        for history, mode in tqdm(cells, desc="latency cells", file=sys.stderr, disable=None):
+    cells = [(h, m) for h in histories for m in modes]
+    for history, mode in tqdm(cells, desc="latency cells", file=sys.stderr, disable=None):
+        resources = Resources(Runtime(threads=threads, cache=False))
+        try:
             takeover = round(LLMSettings().seed_start + CONTROL_DT * history, 1)
             settings = LLMSettings(model=model_spec, url=url, history=history, history_mode=mode, llm_after=takeover)
             cell = CellSpec(sim="mujoco", robot="a1", policy="llm", duration=takeover + CONTROL_DT * queries,
@@ -77,8 +79,8 @@ def measure(model_spec: str, histories: list[int], modes: list[str], queries: in
             if drift and hasattr(policy.model, "cache_reuse"):
                 row.update(_drift(policy))
             rows.append(row)
-    finally:
-        resources.close()
+        finally:
+            resources.close()
     for row in rows:
         exact = next((r for r in rows if r["history"] == row["history"] and r["mode"] == "sliding"), None)
         if row["approximate"] and exact is not None:

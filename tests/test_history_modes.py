@@ -1,0 +1,45 @@
+"""History modes: which one runs, with which llama.cpp settings, and the drift report of the approximation."""
+
+from __future__ import annotations
+
+import pytest
+
+from benchmark.cell import CellSpec, Resources, Runtime, make_cell
+from benchmark.llm.controller import LLMPolicy, LLMSettings
+from benchmark.settings import SettingError
+from robots import load_robot
+
+
+def test_auto_resolves_per_model_and_rows_record_the_mode_that_ran():
+    assert LLMSettings().history_mode == "shifted" and LLMSettings().approximate
+    assert LLMSettings(model="openai:gpt-4o").history_mode == "sliding"
+    assert LLMSettings(model="knn").history_mode == "sliding"
+    cell = make_cell({"policy": "llm"})
+    assert cell.params()["history_mode"] == "shifted"
+    with pytest.raises(SettingError, match="history_mode 'shifted' needs the embedded model"):
+        make_cell({"policy": "llm", "model": "openai:gpt-4o", "history_mode": "shifted"})
+
+
+@pytest.mark.parametrize("mode, reuse", [("shifted", 64), ("sliding", 0), ("block", 0)])
+def test_each_mode_gets_the_llamacpp_settings_it_needs(mode, reuse):
+    resources = Resources(Runtime(threads=1))
+    try:
+        cell = CellSpec(policy="llm", settings=LLMSettings(history_mode=mode))
+        policy = LLMPolicy.from_cell(cell, load_robot("a1"), resources)
+        embedded = policy.model.inner  # under the reply cache
+        assert embedded.cache_reuse == reuse and ("kv-shift" in embedded.id) == (reuse > 0)
+        assert embedded.threads == 1
+    finally:
+        resources.close()
+
+
+def test_the_drift_report_compares_every_reply_with_a_cold_recompute():
+    from benchmark.llm.latency import measure
+
+    rows = measure("embedded", [5], ["sliding", "shifted"], queries=3, threads=2)
+    sliding, shifted = rows
+    assert (sliding["mode"], shifted["mode"]) == ("sliding", "shifted") and shifted["approximate"]
+    for row in rows:
+        assert row["queries"] == 3 and 0.0 <= row["identical_to_cold"] <= 1.0
+        assert row["action_diff_vs_cold"] is None or row["action_diff_vs_cold"] >= 0.0
+    assert "outcome_changed" in shifted and "outcome_changed" not in sliding

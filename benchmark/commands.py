@@ -158,8 +158,11 @@ class _StopBetweenTrials(TrialHooks):
 
 
 def print_run_table(cell: CellSpec, result: dict) -> None:
+    mode = getattr(cell.settings, "history_mode", None)
     print(f"{cell.policy} on {cell.robot} / {cell.sim} / {cell.terrain}, {len(result['trials'])} x "
-          f"{cell.duration:g} s" + (f" (metrics from {cell.eval_start:g} s)" if cell.eval_start else ""))
+          f"{cell.duration:g} s" + (f" (metrics from {cell.eval_start:g} s)" if cell.eval_start else "")
+          + (f", history mode {mode}" + (" (APPROXIMATE: KV-cache shifting)" if cell.settings.approximate else "")
+             if mode else ""))
     print(f"{'seed':>4} {'nwt':>5} {'ok':>3} {'upright':>7} {'dist m':>7} {'vx m/s':>7} {'drift m':>8} "
           f"{'yaw rad':>7}  end")
     for t in result["trials"]:

@@ -294,6 +294,10 @@ def _markdown_report(name: str, title: str, commands: list[str], group: pd.DataF
              f"({_walking_text(group)}); `upright` is the fraction before a fall, which standing wins. "
              "Success rates show a Wilson 95% interval, NWT, speed and distance the mean ± one standard "
              "deviation over trials."]
+    if "approximate_history" in group and group["approximate_history"].fillna(False).astype(bool).any():
+        lines += ["", "**Approximation**: LLM cells with history mode `shifted` ran on llama.cpp's KV-cache shifting "
+                      "(cached keys and values keep the dropped pair in context); `bench latency` measures how often "
+                      "a reply differs from an exact recompute."]
     if commands:
         lines += ["", "Made with:", "", *[f"    {c}" for c in commands]]
     lines += ["", to_markdown(table)]

@@ -211,6 +211,13 @@ class TrialHooks:
         pass
 
 
+class KeepPolicy(TrialHooks):
+    """Keeps the policy of the last trial, to read what it saw afterwards (queries, the last prompt)."""
+
+    def start(self, seed: int, sim: Simulator, policy: Policy, episode: EpisodeConfig) -> None:
+        self.policy = policy
+
+
 def run_cell(cell: CellSpec, seeds: Iterable[int], resources: Resources | None = None,
              hooks: Sequence[TrialHooks] = ()) -> list[TrialResult]:
     """Run one trial per seed of `cell`; engines and models come from `resources` (or are made

@@ -11,7 +11,7 @@ from tqdm import tqdm
 
 from benchmark.cell import CellSpec, Resources, Runtime, TrialHooks, make_cell, run_cell
 from benchmark.interrupt import Interrupted, Interruption
-from benchmark.llm.controller import CONTROL_DT
+from benchmark.llm.controller import takeover_prompt
 from benchmark.runner import TrialResult, summarize
 from benchmark.settings import SettingError
 
@@ -385,28 +385,13 @@ def cmd_ship(args) -> int:
     return 0
 
 
-class _Prompt(TrialHooks):
-    def start(self, seed, sim, policy, episode):
-        self.policy = policy
-
-    def end(self, seed, result) -> None:
-        self.text = self.policy.last_prompt
-
-
 def cmd_prompt(args, values: dict, runtime: Runtime) -> int:
-    """The prompt at the takeover of a real trial: the seed policy fills the history, a reference
-    model that only echoes stands in for the LLM, so nothing is queried."""
-    from dataclasses import replace
-
+    """The prompt at the takeover of a real trial (nothing is queried) and its length in tokens."""
     from benchmark.llm.tokens import gpt4_tokens, server_tokens
 
     base = make_cell({**values, "policy": "llm"}, where="bench prompt")
-    s, dt = base.settings, CONTROL_DT
-    takeover = round(s.seed_start + dt * s.history, 6)
-    cell = replace(base, duration=takeover + dt, settings=replace(s, model="hold", llm_after=takeover))
-    watch = _Prompt()
-    run_cell(cell, [args.seed], hooks=[watch])
-    text = watch.text
+    s = base.settings
+    text = takeover_prompt(base, args.seed)
     if args.tokenizer == "gpt-4":
         tokens = gpt4_tokens(text)
     else:

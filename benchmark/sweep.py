@@ -67,6 +67,14 @@ class _Worker:
         self.resources = Resources(runtime, shared)
 
     def run(self, trial: Trial) -> dict:
+        """One trial's row for the store; a failure is one line that names the trial (the driver stops)."""
+        try:
+            return self._row(trial)
+        except Exception as err:
+            raise TrialError(f"trial {trial.id} ({trial.cell.label()} seed {trial.seed}) failed: "
+                             f"{type(err).__name__}: {err}") from None
+
+    def _row(self, trial: Trial) -> dict:
         cell, trajectory = trial.cell, _Trajectory()
         result = run_cell(cell, [trial.seed], self.resources, hooks=[trajectory])[0]
         robot = load_robot(cell.robot)
@@ -90,11 +98,7 @@ def run_in_worker(trial: Trial, runtime: Runtime) -> dict:
     global _WORKER
     if _WORKER is None:
         _WORKER = _Worker(runtime)
-    try:
-        return _WORKER.run(trial)
-    except Exception as err:  # one line that names the trial; the driver stops the sweep
-        raise TrialError(f"trial {trial.id} ({trial.cell.label()} seed {trial.seed}) failed: "
-                         f"{type(err).__name__}: {err}") from None
+    return _WORKER.run(trial)
 
 
 def _worker_init() -> None:
@@ -166,11 +170,7 @@ def _threads(todo: list[Trial], runtime: Runtime, concurrency: int, stop: Interr
         if not hasattr(local, "worker"):
             local.worker = _Worker(runtime, shared)
             workers.append(local.worker)
-        try:
-            return local.worker.run(trial)
-        except Exception as err:  # one line that names the trial
-            raise TrialError(f"trial {trial.id} ({trial.cell.label()} seed {trial.seed}) failed: "
-                             f"{type(err).__name__}: {err}") from None
+        return local.worker.run(trial)
 
     pool = ThreadPoolExecutor(max_workers=concurrency, thread_name_prefix="trial")
     try:

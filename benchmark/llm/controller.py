@@ -10,10 +10,10 @@ counted, kept with its text, and handled by holding the last action.
 from __future__ import annotations
 
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 import numpy as np
 
-from benchmark.cell import CellSpec, Resources, Runtime
+from benchmark.cell import CellSpec, KeepPolicy, Resources, Runtime, run_cell
 from benchmark.llm.encodings import DEFAULT_ENCODING, ENCODINGS, get_encoding
 from benchmark.llm.models import (MODEL_FORMS, SERVER_KINDS, Constraint, LanguageModel, Reply, Sampling,
                                    check_model_spec, make_model)
@@ -253,6 +253,17 @@ def _new_model(settings: LLMSettings, runtime: Runtime) -> LanguageModel:
                       cache=runtime.cache,
                       threads=runtime.threads, requests_per_minute=runtime.requests_per_minute,
                       cache_reuse=SHIFT_CHUNK if settings.approximate else 0)
+
+
+def takeover_prompt(cell: CellSpec, seed: int = 0) -> str:
+    """The prompt an LLM cell's model gets at its takeover, from a real rollout: the seed policy fills
+    the history and a reference model that only echoes stands in, so nothing is queried."""
+    s = cell.settings
+    takeover = round(s.seed_start + CONTROL_DT * s.history, 6)
+    probe = replace(cell, duration=takeover + CONTROL_DT, settings=replace(s, model="hold", llm_after=takeover))
+    watch = KeepPolicy()
+    run_cell(probe, [seed], hooks=[watch])
+    return watch.policy.last_prompt
 
 
 _WARNED: set[str] = set()

@@ -15,33 +15,14 @@ from functools import cache
 
 import numpy as np
 
-from benchmark.cell import CellSpec, TrialHooks, run_cell
-from benchmark.llm.controller import CONTROL_DT
+from benchmark.cell import CellSpec
+from benchmark.llm.controller import CONTROL_DT, takeover_prompt
 from benchmark.llm.encodings import get_encoding
 from benchmark.llm.prompt import split_prompt
 from benchmark.llm.tokens import gpt4_tokens
 
 CACHE_MIN, CACHE_STEP = 1024, 128  # tokens: the smallest cached prefix and its granularity
 MODES = ("sliding", "block")
-
-
-class _Prompt(TrialHooks):
-    def start(self, seed, sim, policy, episode):
-        self.policy = policy
-
-    def end(self, seed, result) -> None:
-        self.text = self.policy.last_prompt
-
-
-def takeover_prompt(cell: CellSpec, seed: int = 0) -> str:
-    """The prompt a cell's model would get at the takeover (a reference model stands in: nothing is queried)."""
-    s = cell.settings
-    takeover = round(s.seed_start + CONTROL_DT * s.history, 6)
-    probe = replace(cell, duration=takeover + CONTROL_DT, settings=replace(s, model="hold", llm_after=takeover,
-                                                                            history_mode="sliding"))
-    watch = _Prompt()
-    run_cell(probe, [seed], hooks=[watch])
-    return watch.text
 
 
 def _cacheable(tokens: float) -> float:

@@ -23,18 +23,11 @@ import sys
 import numpy as np
 from tqdm import tqdm
 
-from benchmark.cell import CellSpec, Resources, Runtime, TrialHooks, run_cell
+from benchmark.cell import CellSpec, KeepPolicy, Resources, Runtime, run_cell
 from benchmark.llm.controller import CONTROL_DT, LLMSettings
 from benchmark.llm.replies import parse_reply
 
 MODES = ("sliding", "block", "shifted")
-
-
-class _Queries(TrialHooks):
-    """Keeps the LLM policy (and so its queries) of the trial."""
-
-    def start(self, seed, sim, policy, episode):
-        self.policy = policy
 
 
 def _drift(policy) -> dict:
@@ -66,7 +59,7 @@ def measure(model_spec: str, histories: list[int], modes: list[str], queries: in
             settings = LLMSettings(model=model_spec, url=url, history=history, history_mode=mode, llm_after=takeover)
             cell = CellSpec(sim="mujoco", robot="a1", policy="llm", duration=takeover + CONTROL_DT * queries,
                             settings=settings)
-            watch = _Queries()
+            watch = KeepPolicy()
             trial = run_cell(cell, [0], resources, hooks=[watch])[0]
             policy = watch.policy
             latency = np.array([q.reply.latency_s for q in policy.queries])

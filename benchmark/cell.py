@@ -163,8 +163,16 @@ class Resources:
         self.shared = shared
         self.models: dict[tuple, Any] = shared.models if shared else {}
 
+    @staticmethod
+    def _sim_key(cell: CellSpec) -> tuple:
+        return cell.sim, cell.robot, cell.terrain, cell.terrain_seed, cell.engine
+
+    def use_sim(self, cell: CellSpec, sim: Simulator) -> None:
+        """Run `cell`'s trials in this engine instance (e.g. one wrapped to record every substep)."""
+        self.sims[self._sim_key(cell)] = sim
+
     def sim(self, cell: CellSpec, robot: Robot, terrain: Terrain) -> Simulator:
-        key = (cell.sim, cell.robot, cell.terrain, cell.terrain_seed, cell.engine)
+        key = self._sim_key(cell)
         if key not in self.sims:
             if len(self.sims) >= MAX_CACHED_SIMS:
                 self.sims.pop(next(iter(self.sims))).close()

@@ -7,6 +7,8 @@ Examples:
   bench run --sim pybullet --robot anymal --policy rl   5 trials of 10 s, a table of metrics
   bench run --policy stand --duration 5 --json one JSON object on stdout
   bench perf --sim mujoco --robot a1           framework vs raw engine steps/s
+  bench validate                               joint step responses of every engine vs a one-joint model
+  bench gait                                   the seed policies' posture, symmetry and contact pattern
   bench sweep normalization --dry-run          a paper ablation's cells and what is missing
 """
 
@@ -24,6 +26,8 @@ from benchmark.policies import POLICIES
 from benchmark.settings import build, choices_of, hints, kind_of
 from benchmark.llm.latency import MODES as LATENCY_MODES
 from benchmark.train import TrainConfig
+from benchmark.gait import GaitConfig
+from benchmark.validate import ValidateConfig
 from robots import UnknownNameError
 from sims import ENGINES, load_entry_point
 
@@ -200,6 +204,15 @@ def build_parser() -> argparse.ArgumentParser:
     perf.add_argument("--worlds", type=_number(int, True), default=None,
                       help="batched engines (newton): also time N worlds stepped in one call, beside 1 world")
     perf.add_argument("--json", action="store_true", help="print one JSON object")
+
+    validate = sub.add_parser("validate", help="hang each robot; joint step and sine responses per engine vs a "
+                                               "one-joint model -> reports/validation.md",
+                              description=_doc("benchmark.validate"), formatter_class=fmt)
+    add_fields(validate, ValidateConfig)
+
+    gait = sub.add_parser("gait", help="a seed policy's joint means, left/right symmetry and foot contact pattern "
+                                       "-> reports/gait.md", description=_doc("benchmark.gait"), formatter_class=fmt)
+    add_fields(gait, GaitConfig)
     return parser
 
 
@@ -226,6 +239,10 @@ def dispatch(args: argparse.Namespace) -> int:
             return commands.cmd_train(_settings(args, TrainConfig), rewards)
         case "latency":
             return commands.cmd_latency(args, runtime.threads)
+        case "validate":
+            return commands.cmd_validate(_settings(args, ValidateConfig))
+        case "gait":
+            return commands.cmd_gait(_settings(args, GaitConfig))
     return getattr(commands, f"cmd_{args.command}")(args)
 
 

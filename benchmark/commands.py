@@ -13,7 +13,7 @@ from benchmark.cell import CellSpec, Resources, Runtime, TrialHooks, make_cell, 
 from benchmark.interrupt import Interrupted, Interruption
 from benchmark.llm.controller import takeover_prompt
 from benchmark.runner import TrialResult, summarize
-from benchmark.settings import SettingError
+from benchmark.settings import SettingError, build
 
 
 class CliError(SettingError):
@@ -347,7 +347,6 @@ def _run_child(command: list[str]) -> int:
 
 
 def cmd_train(values: dict, rewards: dict) -> int:
-    from benchmark.settings import build
     from benchmark.train import TrainConfig, reward_weights, train
     from robots import load_robot
     from sims import engine
@@ -465,4 +464,28 @@ def cmd_perf(args, values: dict) -> int:
         print(json.dumps(result))
     else:
         print_table(result)
+    return 0
+
+
+def _as_typed(name: str) -> str:
+    """The command line that ran `bench NAME`, to print in the report it writes."""
+    return " ".join([f"bench {name}", *sys.argv[2:]]) if sys.argv[1:2] == [name] else f"bench {name}"
+
+
+def cmd_validate(values: dict) -> int:
+    from benchmark.validate import ValidateConfig, main
+
+    path = main(build(ValidateConfig, values, where="bench validate"), _as_typed("validate"))
+    print(f"wrote {path} and its figures")
+    return 0
+
+
+def cmd_gait(values: dict) -> int:
+    from benchmark.gait import GaitConfig, main
+
+    config = build(GaitConfig, values, where="bench gait")
+    if config.policy_file and len(config.robot) != 1:
+        raise CliError("--policy-file needs exactly one --robot (it was trained for one robot)")
+    path = main(config, _as_typed("gait"))
+    print(f"wrote {path} and its figures")
     return 0

@@ -2,7 +2,9 @@
 
 A linear forward term saturating at the command makes the robot walk (exponential tracking
 alone gets stuck standing); feet air time rewards stepping over shuffling; heading and
-lateral terms stop sideways drift; the total is clipped at zero so that ending an episode
+lateral terms stop sideways drift; posture terms (as in legged_gym's hip and default-pose
+penalties) keep the gait near the default stance, so the seed policy's examples in an LLM's prompt
+show a natural, left-right symmetric trot; the total is clipped at zero so that ending an episode
 early by falling is never better than staying up.
 """
 
@@ -33,6 +35,8 @@ class RewardWeights:
     air_time_target: float = 0.2  # s: two control periods off the ground
     height: float = 0.0  # x max(0, height_floor - base height over the terrain): against crouching
     height_floor: float = 0.0  # m
+    hip_posture: float = -2.0  # x sum over hip abduction joints of (q - default)^2: no splayed legs
+    posture: float = -0.2  # x sum over all joints of (q - default)^2: stay near the default stance
 
 
 class FeetAirTime:
@@ -61,6 +65,7 @@ def walking_reward(state: RobotState, robot: Robot, command: np.ndarray, action:
     vx, vy, vz = state.base_lin_vel
     wx, wy, wz = state.base_ang_vel
     gx, gy, _ = state.projected_gravity
+    offset_sq = (state.joint_pos - robot.default_pose) ** 2
     cmd_vx = max(float(command[0]), 1e-3)
     total = (
         w.forward * float(np.clip(vx / cmd_vx, -1.0, 1.0))
@@ -75,5 +80,7 @@ def walking_reward(state: RobotState, robot: Robot, command: np.ndarray, action:
         + w.action_rate * float(np.mean((action - last_action) ** 2))
         + w.air_time * air_time_reward
         + w.height * max(0.0, w.height_floor - base_height)
+        + w.hip_posture * float(offset_sq[0::3].sum())
+        + w.posture * float(offset_sq.sum())
     )
     return max(total, 0.0)

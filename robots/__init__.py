@@ -43,6 +43,15 @@ class FallCriteria:
 
 
 @dataclass(frozen=True)
+class JointDynamics:
+    """What a real joint adds to ideal PD, per joint in canonical order (from the official descriptions)."""
+
+    armature: np.ndarray  # kg m^2, reflected rotor inertia added to the joint's own inertia
+    damping: np.ndarray  # N m s / rad, viscous, on top of the PD law's Kd
+    friction: np.ndarray  # N m, Coulomb friction (MuJoCo's frictionloss)
+
+
+@dataclass(frozen=True)
 class Robot:
     """A legged robot: its model file and the control facts every engine shares."""
 
@@ -55,12 +64,14 @@ class Robot:
     default_pose: np.ndarray
     kp: float
     kd: float
-    torque_limit: float
+    torque_limit: np.ndarray  # (12,) N m, canonical order
     action_scale: float
     init_height: float
     command: np.ndarray
     obs_scales: ObservationScales
     fall: FallCriteria
+    joint_dynamics: JointDynamics
+    ground_friction: float  # sliding friction of foot/terrain contacts at nominal physics
 
     @property
     def folder(self) -> Path:
@@ -74,6 +85,16 @@ class Robot:
     def targets_from_actions(self, actions: np.ndarray) -> np.ndarray:
         """Joint targets for normalized actions: default pose + action_scale * action."""
         return self.default_pose + self.action_scale * np.asarray(actions, dtype=float)
+
+
+def per_joint(value: float | list[float], num_joints: int = len(CANONICAL_JOINTS)) -> np.ndarray:
+    """A figure given once, per joint role (hip, thigh, calf) or per joint, as one value per joint."""
+    values = np.atleast_1d(np.asarray(value, dtype=float))
+    if values.size in (1, len(JOINT_ROLES)):
+        return np.tile(values, num_joints // values.size)
+    if values.size != num_joints:
+        raise ValueError(f"expected 1, {len(JOINT_ROLES)} (hip, thigh, calf) or {num_joints} values, got {values.size}")
+    return values
 
 
 def available_robots() -> list[str]:
@@ -103,7 +124,7 @@ def load_robot(name: str) -> Robot:
             default_pose=np.array(data["default_pose"], dtype=float),
             kp=float(data["kp"]),
             kd=float(data["kd"]),
-            torque_limit=float(data["torque_limit"]),
+            torque_limit=per_joint(data["torque_limit"]),
             action_scale=float(data["action_scale"]),
             init_height=float(data["init_height"]),
             command=np.array(data["command"], dtype=float),
@@ -113,8 +134,11 @@ def load_robot(name: str) -> Robot:
                 max_tilt_deg=float(data["fall"]["max_tilt_deg"]),
                 contact_links=tuple(data["fall"]["contact_links"]),
             ),
+            joint_dynamics=JointDynamics(**{k: per_joint(data["joint_dynamics"][k])
+                                            for k in ("armature", "damping", "friction")}),
+            ground_friction=float(data["ground_friction"]),
         )
-    except (KeyError, TypeError) as err:
+    except (KeyError, TypeError, ValueError) as err:
         raise ValueError(f"{path}: missing or malformed field {err}") from err
     if len(robot.joints) != len(CANONICAL_JOINTS) or len(robot.default_pose) != len(robot.joints):
         raise ValueError(f"{path}: expected {len(CANONICAL_JOINTS)} joints and default pose values")

@@ -23,11 +23,14 @@ class PhysicsConfig:
     dt: float = 0.005  # s, physics and PD rate (200 Hz)
     substeps: int = 20  # physics steps per control step: 0.1 s, the 10 Hz control period
     gravity: float = -9.81
-    friction: float = 1.0  # sliding friction of every robot/terrain contact
     # Frictional-to-normal impedance ratio of the MuJoCo-family solvers (MuJoCo, Newton's SolverMuJoCo).
     # At 1 (fastest) a standing ANYmal's feet creep outward and the base sinks 8 cm in 5 s; at 10 it
     # settles within 1 cm of PyBullet at about the same speed; at 100 creep stops but stepping is ~25% slower.
     impratio: float = 10.0
+    # Hang the robot with its base welded in the air (joint validation, `bench validate`); the base
+    # link then sits at `init_height` + `hang_height` above the terrain and the feet touch nothing.
+    fixed_base: bool = False
+    hang_height: float = 1.0  # m
 
     @property
     def control_dt(self) -> float:
@@ -66,7 +69,7 @@ class RobotState(NamedTuple):
 class Dynamics:
     """Physical variations an engine applies for domain randomization; defaults are nominal."""
 
-    friction: float = 1.0  # sliding friction of every robot/terrain contact
+    friction: float | None = None  # sliding friction of every robot/terrain contact; None: the robot's own
     base_mass_scale: float = 1.0  # factor on the base link's mass (payload, battery)
     motor_strength: float = 1.0  # factor on the PD torque (before the torque limit)
 
@@ -141,7 +144,8 @@ def initial_joint_pos(robot: Robot, seed: int, spread: float = 0.05) -> np.ndarr
 
 
 def pd_torque(robot: Robot, targets: np.ndarray, q: np.ndarray, qd: np.ndarray, strength: float = 1.0) -> np.ndarray:
-    """The 200 Hz joint PD law every engine applies, clipped to the torque limit."""
+    """The 200 Hz joint PD law every engine applies, clipped to each joint's torque limit. The joint's
+    own damping, friction and armature (`robot.joint_dynamics`) are the engine's to model."""
     tau = strength * (robot.kp * (targets - q) - robot.kd * qd)
     return np.clip(tau, -robot.torque_limit, robot.torque_limit)
 

@@ -5,6 +5,7 @@ joint (kp, kv, force range = the robot's PD gains and torque limit), so the 200 
 runs inside `mj_step(nstep=20)` with no Python per substep. Speed settings (README, "Engine
 settings"): implicitfast integrator (PD damping integrated implicitly), pyramidal friction cone,
 `PhysicsConfig.impratio`, condim 3, robot self-collision off (as in PyBullet's default).
+The robot's joint dynamics are MuJoCo's own joint attributes: armature, damping, frictionloss.
 """
 
 from __future__ import annotations
@@ -28,15 +29,22 @@ def _build_spec(robot: Robot, terrain: Terrain, physics: PhysicsConfig) -> mujoc
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
     spec.option.cone = mujoco.mjtCone.mjCONE_PYRAMIDAL
     spec.option.impratio = physics.impratio
-    friction = [physics.friction, 0.005, 0.0001]
+    friction = [robot.ground_friction, 0.005, 0.0001]
     for geom in spec.geoms:  # robot geoms collide with the terrain only
         geom.contype, geom.conaffinity, geom.condim, geom.friction = 1, 0, 3, friction
-    spec.body(robot.base_link).add_freejoint()
-    for joint in robot.joints:
+    if physics.fixed_base:
+        spec.body(robot.base_link).pos = [0.0, 0.0, robot.init_height + physics.hang_height]
+    else:
+        spec.body(robot.base_link).add_freejoint()
+    jd = robot.joint_dynamics
+    for i, joint in enumerate(robot.joints):
+        spec.joint(joint).armature = jd.armature[i]
+        spec.joint(joint).damping = [jd.damping[i], 0.0, 0.0]
+        spec.joint(joint).frictionloss = jd.friction[i]
         actuator = spec.add_actuator(name=joint, target=joint, trntype=mujoco.mjtTrn.mjTRN_JOINT)
         actuator.set_to_position(kp=robot.kp, kv=robot.kd)
         actuator.forcelimited = True
-        actuator.forcerange = [-robot.torque_limit, robot.torque_limit]
+        actuator.forcerange = [-robot.torque_limit[i], robot.torque_limit[i]]
     ground = spec.worldbody.add_geom(name="terrain", contype=0, conaffinity=1, condim=3, friction=friction)
     if terrain.is_flat:
         ground.type, ground.size = mujoco.mjtGeom.mjGEOM_PLANE, [0.0, 0.0, 1.0]
@@ -49,6 +57,19 @@ def _build_spec(robot: Robot, terrain: Terrain, physics: PhysicsConfig) -> mujoc
         ground.type, ground.hfieldname = mujoco.mjtGeom.mjGEOM_HFIELD, "terrain"
         ground.pos = [*terrain.center, low]
     return spec
+
+
+def hung_joint_inertia_and_gravity(robot: Robot, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each joint's own inertia (the joint-space mass matrix diagonal, armature excluded; kg m^2) and
+    gravity torque (N m), canonical order, for the robot hung by its base in `pose`."""
+    sim = MujocoSim(robot, Terrain("flat"), PhysicsConfig(fixed_base=True))
+    m, d = sim.model, sim.data
+    d.qpos[sim._qpos_idx] = pose
+    mujoco.mj_forward(m, d)
+    full = np.zeros((m.nv, m.nv))
+    mujoco.mj_fullM(m, d, full)
+    dofs = sim._qvel_idx
+    return full[dofs, dofs] - m.dof_armature[dofs], -d.qfrc_bias[dofs]
 
 
 class MujocoSim:
@@ -77,9 +98,15 @@ class MujocoSim:
         self._geom_bits = geom_bits.tolist()
         self._fall_bit = 1 << num_feet
         self._feet_of_bits = (np.arange(1 << num_feet)[:, None] >> np.arange(num_feet)) & 1 == 1
-        # Base pose and joints gathered with one `take` each from views made once.
-        self._pos_idx = np.concatenate([np.arange(7), self._qpos_idx])
-        self._vel_idx = np.concatenate([np.arange(6), self._qvel_idx])
+        # Base pose and joints gathered with one `take` each from views made once. A fixed base has no
+        # coordinates: its constant pose and zero velocity are prepended instead.
+        self._hung = None
+        if physics.fixed_base:
+            self._pos_idx, self._vel_idx = self._qpos_idx, self._qvel_idx
+            self._hung = (np.array([*m.body_pos[body_id(robot.base_link)], 1.0, 0.0, 0.0, 0.0]), np.zeros(6))
+        else:
+            self._pos_idx = np.concatenate([np.arange(7), self._qpos_idx])
+            self._vel_idx = np.concatenate([np.arange(6), self._qvel_idx])
         d = self.data
         self._qpos, self._qvel, self._act_force = d.qpos, d.qvel, d.actuator_force
         self._rot = np.zeros(9)
@@ -91,8 +118,9 @@ class MujocoSim:
     def reset(self, seed: int = 0) -> RobotState:
         m, d = self.model, self.data
         mujoco.mj_resetData(m, d)
-        d.qpos[:3] = [0.0, 0.0, self.robot.init_height + self.terrain.height_at(0.0, 0.0)]
-        d.qpos[3:7] = [1.0, 0.0, 0.0, 0.0]
+        if self._hung is None:
+            d.qpos[:3] = [0.0, 0.0, self.robot.init_height + self.terrain.height_at(0.0, 0.0)]
+            d.qpos[3:7] = [1.0, 0.0, 0.0, 0.0]
         d.qpos[self._qpos_idx] = initial_joint_pos(self.robot, seed)
         d.ctrl[:] = self.robot.default_pose
         mujoco.mj_forward(m, d)
@@ -112,6 +140,8 @@ class MujocoSim:
     def _state(self) -> RobotState:
         d = self.data
         qpos, qvel = self._qpos.take(self._pos_idx), self._qvel.take(self._vel_idx)
+        if self._hung is not None:
+            qpos, qvel = np.concatenate([self._hung[0], qpos]), np.concatenate([self._hung[1], qvel])
         mujoco.mju_quat2Mat(self._rot, qpos[3:7])
         body_to_world = self._rot.reshape(3, 3)  # v @ R == R^T v: world -> base
         bits, geom_bits = 0, self._geom_bits  # a Python loop: a handful of contacts, ufunc.reduce is slower
@@ -133,14 +163,16 @@ class MujocoSim:
 
     def set_dynamics(self, dynamics: Dynamics) -> None:
         m, robot, s = self.model, self.robot, dynamics.motor_strength
-        m.geom_friction[:, 0] = dynamics.friction  # MuJoCo takes the larger of two geoms': set all
+        friction = robot.ground_friction if dynamics.friction is None else dynamics.friction
+        m.geom_friction[:, 0] = friction  # MuJoCo takes the larger of two geoms': set all
         m.body_mass[self._base_body] = self._nominal_mass * dynamics.base_mass_scale
         m.actuator_gainprm[:, 0] = s * robot.kp
         m.actuator_biasprm[:, 1] = -s * robot.kp
         m.actuator_biasprm[:, 2] = -s * robot.kd
 
     def push_base(self, velocity_xy: np.ndarray) -> None:
-        self.data.qvel[:2] += velocity_xy
+        if self._hung is None:
+            self.data.qvel[:2] += velocity_xy
 
     def body_poses(self) -> BodyPoses:
         mujoco.mj_kinematics(self.model, self.data)  # xpos after mj_step lags qpos by one substep

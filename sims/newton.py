@@ -2,11 +2,14 @@
 
 `NewtonWorlds` holds N copies of the robot (one per world, independent seeds) on one shared
 terrain and steps them in one solver call; `NewtonSim` is the one-world `Simulator`.
-Solvers (`--solver`): `mujoco` (default; Newton's SolverMuJoCo on mujoco_warp, stable on flat
-and rough ground) and `featherstone` (faster, but went to NaN on heightfields here). The PD
-law runs inside the solver as joint target stiffness/damping with the robot's torque limit
-as the effort limit; contact settings match the MuJoCo backend (implicitfast, pyramidal
-cone, impratio 10, self-collision off). Warp compiles its kernels on first use (30-90 s on
+Solvers (`--solver`): `mujoco` (default; Newton's SolverMuJoCo on mujoco_warp) and `featherstone`
+(faster, but went to NaN on heightfields here). Contacts (`--contacts`): `newton` (default; Newton's
+own CollisionPipeline runs before every substep and hands its contacts to the solver) or `mujoco`
+(mujoco_warp's own narrow phase, which on heightfields fills its per-pair buffer with prisms not in
+contact and drops the feet: mujoco_warp issue #1083). The PD law runs inside the solver as joint
+target stiffness/damping with each joint's torque limit as its effort limit; the robot's armature,
+damping and Coulomb friction are Newton's joint attributes; contact settings match the MuJoCo
+backend (implicitfast, pyramidal cone, impratio 10, self-collision off). Warp compiles its kernels on first use (30-90 s on
 CPU) into ~/.cache/warp; later runs load them in seconds.
 """
 
@@ -61,16 +64,20 @@ class NewtonWorlds:
               "(first use compiles warp kernels, 30-90 s on CPU; cached afterwards)", file=sys.stderr)
         one = newton.ModelBuilder()
         newton.solvers.SolverMuJoCo.register_custom_attributes(one)
-        one.default_shape_cfg.mu = physics.friction
-        one.add_urdf(str(robot.urdf), xform=wp.transform(wp.vec3(0.0, 0.0, robot.init_height), wp.quat_identity()),
-                     floating=True, enable_self_collisions=False, collapse_fixed_joints=False,
+        one.default_shape_cfg.mu = robot.ground_friction
+        height = robot.init_height + (physics.hang_height if physics.fixed_base else 0.0)
+        one.add_urdf(str(robot.urdf), xform=wp.transform(wp.vec3(0.0, 0.0, height), wp.quat_identity()),
+                     floating=not physics.fixed_base, enable_self_collisions=False, collapse_fixed_joints=False,
                      joint_damping_mode="passive")
         names = [label.split("/")[-1] for label in one.joint_label]
         self._q_idx = np.array([one.joint_q_start[names.index(j)] for j in robot.joints])
         self._qd_idx = np.array([one.joint_qd_start[names.index(j)] for j in robot.joints])
-        for dof in self._qd_idx:
+        jd = robot.joint_dynamics
+        for i, dof in enumerate(self._qd_idx):
             one.joint_target_ke[dof], one.joint_target_kd[dof] = robot.kp, robot.kd
-            one.joint_effort_limit[dof] = robot.torque_limit
+            one.joint_effort_limit[dof] = robot.torque_limit[i]
+            one.joint_armature[dof], one.joint_damping[dof] = jd.armature[i], jd.damping[i]
+            one.joint_friction[dof] = jd.friction[i]
         bodies = [label.split("/")[-1] for label in one.body_label]
         self._body_names = tuple(bodies)
         self._bodies_per_world = len(bodies)
@@ -78,7 +85,7 @@ class NewtonWorlds:
 
         scene = newton.ModelBuilder()
         newton.solvers.SolverMuJoCo.register_custom_attributes(scene)
-        scene.default_shape_cfg.mu = physics.friction
+        scene.default_shape_cfg.mu = robot.ground_friction
         scene.replicate(one, worlds)
         self._add_terrain(scene, newton, wp)
         scene.gravity = (0.0, 0.0, physics.gravity)
@@ -87,13 +94,20 @@ class NewtonWorlds:
             with warnings.catch_warnings():  # mujoco_warp raises nconmax for heightfields and says so
                 warnings.filterwarnings("ignore", message=".*Value for nconmax is changed")
                 self.solver = newton.solvers.SolverMuJoCo(
-                    self.model, use_mujoco_contacts=True, nconmax=200, njmax=600, cone="pyramidal",
-                    impratio=physics.impratio, integrator="implicitfast")
+                    self.model, use_mujoco_contacts=options.contacts == "mujoco", nconmax=200, njmax=600,
+                    cone="pyramidal", impratio=physics.impratio, integrator="implicitfast")
         else:
             self.solver = newton.solvers.SolverFeatherstone(self.model)
+        self.pipeline = self.contacts = None
+        if options.contacts == "newton" or solver != "mujoco":
+            self.pipeline = newton.CollisionPipeline(self.model, rigid_contact_max=self._max_contacts(),
+                                                     soft_contact_max=0)
+            self.contacts = self.pipeline.contacts()
         self._state, self._next = self.model.state(), self.model.state()
         self.control = self.model.control()
         self._com = self.model.body_com.numpy()[0].astype(np.float64)  # base COM in the base frame
+        self._shape_body = self.model.shape_body.numpy()
+        self._shape_margin = self.model.shape_margin.numpy()
         self._geom_shape = getattr(self.solver, "mjc_geom_to_newton_shape", None)
         shape_body = self.model.shape_body.numpy()
         foot_bodies = [bodies.index(f) for f in robot.foot_links]
@@ -117,6 +131,11 @@ class NewtonWorlds:
         self._use_graph = device.is_cuda and wp.is_mempool_enabled(device)
         print(f"newton: ready in {time.perf_counter() - started:.1f} s", file=sys.stderr)
 
+    def _max_contacts(self) -> int:
+        """Room for every world's contacts: SolverMuJoCo's own buffer size, or 64 a world."""
+        count = getattr(self.solver, "get_max_contact_count", None)
+        return int(count()) if count is not None else 64 * self.worlds
+
     def _add_terrain(self, scene, newton, wp) -> None:
         t = self.terrain
         if t.is_flat:
@@ -135,9 +154,10 @@ class NewtonWorlds:
 
         seeds = list(seeds)
         q = self.model.joint_q.numpy().reshape(self.worlds, self._coords).astype(np.float64)
-        z = self.robot.init_height + self.terrain.height_at(0.0, 0.0)
-        q[:, :3] = [0.0, 0.0, z]
-        q[:, 3:7] = [0.0, 0.0, 0.0, 1.0]  # x, y, z, w
+        if not self.physics.fixed_base:
+            z = self.robot.init_height + self.terrain.height_at(0.0, 0.0)
+            q[:, :3] = [0.0, 0.0, z]
+            q[:, 3:7] = [0.0, 0.0, 0.0, 1.0]  # x, y, z, w
         for w, seed in enumerate(seeds):
             q[w, self._q_idx] = initial_joint_pos(self.robot, seed)
         self._state.joint_q.assign(q.ravel().astype(np.float32))
@@ -175,7 +195,9 @@ class NewtonWorlds:
     def _solver_steps(self) -> None:
         first = self._state
         for _ in range(self.physics.substeps):
-            self.solver.step(self._state, self._next, self.control, None, self.physics.dt)
+            if self.pipeline is not None:
+                self.pipeline.collide(self._state, self.contacts)
+            self.solver.step(self._state, self._next, self.control, self.contacts, self.physics.dt)
             self._state, self._next = self._next, self._state
         if self._state is not first:  # odd substeps: end in the buffer we began in, so a replay can follow
             first.assign(self._state)
@@ -187,7 +209,7 @@ class NewtonWorlds:
 
         model = self.model
         mu = model.shape_material_mu.numpy()
-        mu[:] = dynamics.friction
+        mu[:] = self.robot.ground_friction if dynamics.friction is None else dynamics.friction
         model.shape_material_mu.assign(mu)
         mass = model.body_mass.numpy()
         base = np.arange(self.worlds) * self._bodies_per_world
@@ -209,6 +231,8 @@ class NewtonWorlds:
 
     def push_base(self, velocity_xy: np.ndarray) -> None:
         """Add a horizontal velocity to every world's base."""
+        if self.physics.fixed_base:
+            return
         qd = self._state.joint_qd.numpy().reshape(self.worlds, self._dofs)
         qd[:, :2] += np.asarray(velocity_xy, dtype=np.float32)
         self._state.joint_qd.assign(qd.ravel())
@@ -241,21 +265,13 @@ class NewtonWorlds:
                 for w in range(self.worlds)]
 
     def _contacts(self) -> tuple[np.ndarray, np.ndarray]:
+        """Which feet of each world touch the terrain, and whether a fall link does."""
         feet = np.zeros((self.worlds, len(self.robot.foot_links)), dtype=bool)
         falls = np.zeros(self.worlds, dtype=bool)
-        data = getattr(self.solver, "mjw_data", None)
-        if data is None or self._geom_shape is None:
-            return feet, falls
-        count = int(data.nacon.numpy()[0])
-        if count == 0:
-            return feet, falls
-        touching = data.contact.dist.numpy()[:count] <= 0.0  # the list also holds pairs within the margin
-        geoms = data.contact.geom.numpy()[:count][touching]
-        worlds = data.contact.worldid.numpy()[:count][touching]
-        geom_shape = self._geom_shape.numpy()  # (worlds, geoms) -> shape index, -1 for none
-        s1, s2 = geom_shape[worlds, geoms[:, 0]], geom_shape[worlds, geoms[:, 1]]
-        both = (s1 >= 0) & (s2 >= 0)
-        s1, s2 = s1[both], s2[both]
+        if self.contacts is not None:
+            s1, s2 = self._newton_contacts()
+        else:
+            s1, s2 = self._mujoco_contacts()
         # the robot's shape in a robot-terrain pair (terrain shapes belong to no world);
         # robot-against-robot pairs are not contacts with the terrain
         robot_shape = np.where(self._shape_world[s1] < 0, s2, np.where(self._shape_world[s2] < 0, s1, -1))
@@ -264,6 +280,47 @@ class NewtonWorlds:
         feet[world[leg >= 0], leg[leg >= 0]] = True
         falls[world[self._shape_falls[robot_shape]]] = True
         return feet, falls
+
+    def _newton_contacts(self) -> tuple[np.ndarray, np.ndarray]:
+        """Shape pairs touching (surface separation <= 0) in Newton's own contact buffer, which
+        also holds pairs within the detection gap."""
+        c = self.contacts
+        count = int(c.rigid_contact_count.numpy()[0])
+        s0, s1 = c.rigid_contact_shape0.numpy()[:count], c.rigid_contact_shape1.numpy()[:count]
+        body_q = self._state.body_q.numpy().astype(np.float64)
+
+        def to_world(shape: np.ndarray, point: np.ndarray) -> np.ndarray:
+            body = self._shape_body[shape]
+            pose = body_q[np.maximum(body, 0)]
+            x, y, z, w = pose[:, 3], pose[:, 4], pose[:, 5], pose[:, 6]
+            rot = world_to_base_batch(np.stack([w, x, y, z], axis=1))  # world -> body; its transpose rotates out
+            moved = np.einsum("nji,nj->ni", rot, point) + pose[:, :3]
+            return np.where((body >= 0)[:, None], moved, point)  # static shapes: points are in the world frame
+
+        p0 = to_world(s0, c.rigid_contact_point0.numpy()[:count].astype(np.float64))
+        p1 = to_world(s1, c.rigid_contact_point1.numpy()[:count].astype(np.float64))
+        normal = c.rigid_contact_normal.numpy()[:count]
+        thickness = (c.rigid_contact_margin0.numpy()[:count] - self._shape_margin[s0]
+                     + c.rigid_contact_margin1.numpy()[:count] - self._shape_margin[s1])
+        touching = np.einsum("ni,ni->n", normal, p1 - p0) - thickness <= 0.0
+        return s0[touching], s1[touching]
+
+    def _mujoco_contacts(self) -> tuple[np.ndarray, np.ndarray]:
+        """Shape pairs touching in mujoco_warp's contact list (`--contacts mujoco`)."""
+        none = np.zeros(0, dtype=np.int64)
+        data = getattr(self.solver, "mjw_data", None)
+        if data is None or self._geom_shape is None:
+            return none, none
+        count = int(data.nacon.numpy()[0])
+        if count == 0:
+            return none, none
+        touching = data.contact.dist.numpy()[:count] <= 0.0  # the list also holds pairs within the margin
+        geoms = data.contact.geom.numpy()[:count][touching]
+        worlds = data.contact.worldid.numpy()[:count][touching]
+        geom_shape = self._geom_shape.numpy()  # (worlds, geoms) -> shape index, -1 for none
+        s1, s2 = geom_shape[worlds, geoms[:, 0]], geom_shape[worlds, geoms[:, 1]]
+        both = (s1 >= 0) & (s2 >= 0)
+        return s1[both], s2[both]
 
     def body_poses(self, world: int = 0) -> BodyPoses:
         body_q = self._state.body_q.numpy().reshape(self.worlds, self._bodies_per_world, 7)[world].astype(np.float64)

@@ -1,7 +1,10 @@
 """PyBullet backend.
 
-Torque control with the PD law computed in numpy at every 200 Hz substep (the default
-velocity motors are switched off), inertias taken from the URDF, self-collision off.
+Torque control with the PD law computed in numpy at every 200 Hz substep, inertias taken from the
+URDF, self-collision off. Joint dynamics: viscous damping is added to the numpy law; Coulomb
+friction is each joint's velocity motor, held at zero velocity with the friction torque as its
+maximum force (it acts beside torque control). Bullet has no joint armature (reflected rotor
+inertia): PyBullet runs without it, and `bench validate` shows what that changes.
 PyBullet reports the base pose and velocity at the base's centre of mass; they are moved
 to the base link origin so every engine reports the same point.
 """
@@ -39,7 +42,8 @@ class PybulletSim:
         p.setPhysicsEngineParameter(deterministicOverlappingPairs=1)
         p.setGravity(0.0, 0.0, physics.gravity)
         self.ground = self._load_terrain()
-        self.body = p.loadURDF(str(robot.urdf), [0.0, 0.0, robot.init_height], flags=p.URDF_USE_INERTIA_FROM_FILE)
+        self.body = p.loadURDF(str(robot.urdf), [0.0, 0.0, robot.init_height], flags=p.URDF_USE_INERTIA_FROM_FILE,
+                               useFixedBase=physics.fixed_base)
         names = {p.getJointInfo(self.body, i)[12].decode(): i for i in range(p.getNumJoints(self.body))}
         joint_names = {p.getJointInfo(self.body, i)[1].decode(): i for i in range(p.getNumJoints(self.body))}
         self._joints = [joint_names[j] for j in robot.joints]
@@ -48,8 +52,10 @@ class PybulletSim:
         self._links = [-1] + list(range(p.getNumJoints(self.body)))
         self._link_names = (robot.base_link, *(p.getJointInfo(self.body, i)[12].decode() for i in self._links[1:]))
         for link in self._links:
-            p.changeDynamics(self.body, link, lateralFriction=physics.friction, restitution=0.0)
-        p.setJointMotorControlArray(self.body, self._joints, p.VELOCITY_CONTROL, forces=[0.0] * len(self._joints))
+            p.changeDynamics(self.body, link, lateralFriction=robot.ground_friction, restitution=0.0)
+        self._damping = robot.joint_dynamics.damping
+        p.setJointMotorControlArray(self.body, self._joints, p.VELOCITY_CONTROL, targetVelocities=[0.0] * len(self._joints),
+                                    forces=robot.joint_dynamics.friction.tolist())
         self._com_offset = np.array(p.getDynamicsInfo(self.body, -1)[3])  # base inertial frame in link frame
         self._torque = np.zeros(robot.num_joints)
         self._nominal_mass = p.getDynamicsInfo(self.body, -1)[0]
@@ -88,6 +94,8 @@ class PybulletSim:
 
     def _com_world(self, xy: list[float]) -> list[float]:
         z = self.robot.init_height + self.terrain.height_at(0.0, 0.0)
+        if self.physics.fixed_base:
+            z += self.physics.hang_height
         return list(np.array([xy[0], xy[1], z]) + self._com_offset)
 
     def step(self, joint_targets: np.ndarray) -> RobotState:
@@ -102,17 +110,17 @@ class PybulletSim:
             q = np.array([s[0] for s in states])
             qd = np.array([s[1] for s in states])
             self._torque = pd_torque(robot, targets, q, qd, self._strength)
-            p.setJointMotorControlArray(body, joints, p.TORQUE_CONTROL, forces=self._torque)
+            p.setJointMotorControlArray(body, joints, p.TORQUE_CONTROL, forces=self._torque - self._damping * qd)
             p.stepSimulation()
 
     def raw_loop(self, joint_targets: np.ndarray, control_steps: int) -> None:
         p, body, joints = self.client, self.body, self._joints
-        kp, kd, limit = self.robot.kp, self.robot.kd, self.robot.torque_limit
+        kp, kd, limit, damping = self.robot.kp, self.robot.kd, self.robot.torque_limit, self._damping
         for _ in range(control_steps * self.physics.substeps):
             states = p.getJointStates(body, joints)
             q = np.array([s[0] for s in states])
             qd = np.array([s[1] for s in states])
-            tau = np.clip(kp * (joint_targets - q) - kd * qd, -limit, limit)
+            tau = np.clip(kp * (joint_targets - q) - kd * qd, -limit, limit) - damping * qd
             p.setJointMotorControlArray(body, joints, p.TORQUE_CONTROL, forces=tau)
             p.stepSimulation()
 
@@ -143,12 +151,15 @@ class PybulletSim:
 
     def set_dynamics(self, dynamics: Dynamics) -> None:
         p = self.client
+        friction = self.robot.ground_friction if dynamics.friction is None else dynamics.friction
         for link in self._links:  # Bullet multiplies the two frictions; the ground keeps 1.0
-            p.changeDynamics(self.body, link, lateralFriction=dynamics.friction)
+            p.changeDynamics(self.body, link, lateralFriction=friction)
         p.changeDynamics(self.body, -1, mass=self._nominal_mass * dynamics.base_mass_scale)
         self._strength = dynamics.motor_strength
 
     def push_base(self, velocity_xy: np.ndarray) -> None:
+        if self.physics.fixed_base:
+            return
         linear, angular = self.client.getBaseVelocity(self.body)
         self.client.resetBaseVelocity(self.body, [linear[0] + velocity_xy[0], linear[1] + velocity_xy[1], linear[2]],
                                       angular)

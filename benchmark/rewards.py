@@ -37,6 +37,7 @@ class RewardWeights:
     height_floor: float = 0.0  # m
     hip_posture: float = -2.0  # x sum over hip abduction joints of (q - default)^2: no splayed legs
     posture: float = -0.2  # x sum over all joints of (q - default)^2: stay near the default stance
+    diagonal_gait: float = 0.5  # x (diagonal foot pairs agreeing - lateral pairs agreeing) / 2: a trot, not a bound
 
 
 class FeetAirTime:
@@ -66,6 +67,8 @@ def walking_reward(state: RobotState, robot: Robot, command: np.ndarray, action:
     wx, wy, wz = state.base_ang_vel
     gx, gy, _ = state.projected_gravity
     offset_sq = (state.joint_pos - robot.default_pose) ** 2
+    fr, fl, rr, rl = (bool(c) for c in state.foot_contact)  # canonical leg order
+    trot = ((fr == rl) + (fl == rr) - (fr == fl) - (rr == rl)) / 2
     cmd_vx = max(float(command[0]), 1e-3)
     total = (
         w.forward * float(np.clip(vx / cmd_vx, -1.0, 1.0))
@@ -82,5 +85,6 @@ def walking_reward(state: RobotState, robot: Robot, command: np.ndarray, action:
         + w.height * max(0.0, w.height_floor - base_height)
         + w.hip_posture * float(offset_sq[0::3].sum())
         + w.posture * float(offset_sq.sum())
+        + w.diagonal_gait * trot
     )
     return max(total, 0.0)

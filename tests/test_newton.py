@@ -81,3 +81,22 @@ def test_an_odd_number_of_substeps_ends_in_the_state_it_began_in():
     for a, b in zip(odd.states(), single.states()):
         np.testing.assert_allclose(a.joint_pos, b.joint_pos, atol=1e-6)
         np.testing.assert_allclose(a.base_pos, b.base_pos, atol=1e-6)
+
+
+def test_seed_policy_walks_rough_ground_on_newtons_own_contacts():
+    """Newton's CollisionPipeline on the heightfield (the default): the shipped A1 policy walks, and the
+    feet it reports on the ground come from Newton's contacts (mujoco_warp's own heightfield contacts
+    dropped them and the robots tipped over: mujoco_warp issue #1083)."""
+    from benchmark.cell import CellSpec, Resources, run_cell
+    from benchmark.gait import SubstepTrace
+
+    cell = CellSpec(sim="newton", robot="a1", terrain="rough", policy="rl", duration=6.0)
+    inner = make_sim("newton", load_robot("a1"), Terrain("rough"), PhysicsConfig(substeps=1))
+    assert inner.worlds.pipeline is not None
+    trace = SubstepTrace(inner, PhysicsConfig().substeps)
+    resources = Resources()
+    resources.use_sim(cell, trace)
+    trial = run_cell(cell, [0], resources)[0]
+    assert trial.success and trial.fall_time is None and trial.distance_m > 3.0, trial
+    stance = np.array(trace.contacts)[200:].mean(axis=0)  # after the first second
+    assert np.all((stance > 0.2) & (stance < 0.95)), stance  # every foot steps: on the ground part of the time

@@ -212,7 +212,9 @@ def plot(curves: dict, robot: str, dt: float, path: Path) -> None:
             continue
         ax = axes[JOINT_ROLES.index(role), 0 if kind == "step" else 1]
         t = np.arange(1, len(q) + 1) * dt
-        ax.plot(t, q - q0, label=source, **styles.get(source, dict(lw=1.5)))
+        if source not in styles:  # engines: each drawn thinner than the one before, so equal curves all show
+            styles[source] = dict(lw=max(1.0, 4.0 - 1.3 * (len(styles) - 2)), alpha=0.8)
+        ax.plot(t, q - q0, label=source, **styles[source])
         ax.set_title(f"{role}: {kind}", fontsize=10)
         ax.set_ylabel("rad from settled")
     for ax in axes[-1]:

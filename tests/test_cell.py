@@ -40,4 +40,4 @@ def test_settings_of_another_policy_are_dropped_in_grids_and_defaults_come_from_
     cell = make_cell({"policy": "rl", "history": 10, "encoding": "E3"}, strict=False)
     assert cell.settings.policy_file is None and "history" not in cell.params()
     assert CellSpec(policy="llm").duration == 20.0 and CellSpec(policy="rl").duration == 10.0
-    assert make_cell({"sim": "newton"}).engine_options == {"device": None, "solver": "mujoco"}
+    assert make_cell({"sim": "newton"}).engine_options == {"device": None, "solver": "mujoco", "contacts": "newton"}

@@ -122,6 +122,7 @@ def test_standing_and_freezing_score_zero_and_the_oracle_walks():
     stand = run_cell(CellSpec(sim="mujoco", robot="a1", policy="stand", duration=10.0), range(2))
     assert all(not t.success and t.nwt <= 0.1 and t.upright_fraction == 1.0 for t in stand)
     hold = run_cell(CellSpec(policy="llm", duration=20.0, settings=LLMSettings(model="hold")), range(2))
-    assert all(not t.success and t.policy_metrics["queries"] == 100 for t in hold)
+    # a frozen trot may tip over before the phase ends (fewer than its 100 queries): never a success
+    assert all(not t.success and 0 < t.policy_metrics["queries"] <= 100 for t in hold)
     oracle = run_cell(CellSpec(policy="llm", duration=20.0, settings=LLMSettings(model="oracle")), range(2))
     assert all(t.success for t in oracle) and oracle[0].policy_metrics["input_tokens"] > 7000

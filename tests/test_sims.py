@@ -129,7 +129,7 @@ def test_a_trial_does_not_depend_on_the_trials_before_it(make, sim_name):
 @pytest.mark.parametrize("sim_name", available_sims())
 def test_an_exploding_simulation_is_a_failed_trial_with_a_reason(sim_name):
     """Absurd gains at a coarse timestep blow the integration up: reported, never a crash."""
-    robot = dataclasses.replace(load_robot("a1"), kp=5000.0, kd=0.0, torque_limit=1e6)
+    robot = dataclasses.replace(load_robot("a1"), kp=5000.0, kd=0.0, torque_limit=np.full(12, 1e6))
     sim = make_sim(sim_name, robot, Terrain("flat"), PhysicsConfig(dt=0.02, substeps=5))
     try:
         result = run_trial(sim, robot, sim.terrain, StandPolicy(robot), EpisodeConfig(duration=3.0), seed=0)

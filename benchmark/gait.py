@@ -37,7 +37,7 @@ class GaitConfig:
     """What `bench gait` measures; its fields are the command's options."""
 
     robot: tuple[str, ...] = setting(tuple(available_robots()), "robots", choices=available_robots)
-    sim: str = setting("mujoco", "engine", choices=lambda: tuple(ENGINES))
+    sim: str = setting("mujoco", "engine", choices=lambda: tuple(ENGINES), noun="simulator")
     terrain: str = setting("flat", "terrain", choices=lambda: tuple(TERRAINS))
     policy_file: str | None = setting(None, "seed policy .npz (default: the robot's shipped policy; one robot)")
     trials: int = setting(3, "trials (seeds 0..N-1)", positive=True)

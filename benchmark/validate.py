@@ -45,7 +45,7 @@ class ValidateConfig:
     """What `bench validate` measures; its fields are the command's options."""
 
     robot: tuple[str, ...] = setting(tuple(available_robots()), "robots to hang", choices=available_robots)
-    sim: tuple[str, ...] = setting(tuple(ENGINES), "engines to compare", choices=lambda: tuple(ENGINES))
+    sim: tuple[str, ...] = setting(tuple(ENGINES), "engines to compare", choices=lambda: tuple(ENGINES), noun="simulator")
     step_rad: float = setting(0.2, "step added to the joint's default target, rad", positive=True)
     sine_rad: float = setting(0.1, "amplitude of the sinusoidal target, rad", positive=True)
     sine_hz: float = setting(2.0, "frequency of the sinusoidal target, Hz", positive=True)

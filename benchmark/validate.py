@@ -74,14 +74,16 @@ class Joint:
         return math.sqrt(self.kp / total), (self.kd + self.damping) / (2 * math.sqrt(self.kp * total))
 
 
-def joint_facts(robot: Robot, index: int) -> Joint:
-    """Inertia and gravity torque of one joint at the default pose, from the URDF via MuJoCo."""
+def joint_facts(robot: Robot) -> list[Joint]:
+    """Each joint's inertia and gravity torque at the default pose (from the URDF via MuJoCo), with its
+    armature, damping, friction, gains and torque limit: canonical order."""
     from sims.mujoco import hung_joint_inertia_and_gravity
 
     inertia, gravity = hung_joint_inertia_and_gravity(robot, robot.default_pose)
     jd = robot.joint_dynamics
-    return Joint(index, float(inertia[index]), float(gravity[index]), float(jd.armature[index]), float(jd.damping[index]),
-                 float(jd.friction[index]), robot.kp, robot.kd, float(robot.torque_limit[index]))
+    return [Joint(i, float(inertia[i]), float(gravity[i]), float(jd.armature[i]), float(jd.damping[i]),
+                  float(jd.friction[i]), robot.kp, robot.kd, float(robot.torque_limit[i]))
+            for i in range(robot.num_joints)]
 
 
 def reference_response(joint: Joint, q0: float, targets: np.ndarray, dt: float, armature: float | None = None,
@@ -162,7 +164,8 @@ def validate(config: ValidateConfig, progress=None) -> tuple[pd.DataFrame, dict]
     rows, curves = [], {}
     for robot_name in config.robot:
         robot = load_robot(robot_name)
-        joints = {role: joint_facts(robot, i) for i, role in enumerate(JOINT_ROLES)}  # front-right leg
+        facts = joint_facts(robot)
+        joints = {role: facts[i] for i, role in enumerate(JOINT_ROLES)}  # the front-right leg
         for sim_name in config.sim:
             sim = make_sim(sim_name, robot, Terrain("flat"), physics)
             for role, joint in joints.items():

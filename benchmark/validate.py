@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 import sys
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -267,4 +267,4 @@ def main(config: ValidateConfig, command: str = "bench validate") -> Path:
     total = len(config.robot) * len(config.sim) * len(JOINT_ROLES) * 2
     with tqdm(total=total, desc="validate", unit="run", file=sys.stderr, disable=None) as bar:
         table, curves = validate(config, bar.update)
-    return write_report(table, curves, replace(config), command)
+    return write_report(table, curves, config, command)

@@ -28,6 +28,11 @@ from sims.base import (BodyPoses, Dynamics, PhysicsConfig, RobotState, initial_j
 from sims.newton_options import NewtonOptions
 from sims.terrain import Terrain
 
+# Contact and constraint-row room per world in mujoco_warp. Newton's own pipeline reports up to ~200
+# contacts for A1 on the rough heightfield (triangle pairs within the detection gap); at 200 the
+# buffer overflowed and dropped some (mujoco_warp printed "Increase nconmax"), so there is room for 2x.
+NCONMAX, NJMAX = 400, 1600
+
 
 def default_device() -> str:
     wp = _quiet_warp()
@@ -94,7 +99,7 @@ class NewtonWorlds:
             with warnings.catch_warnings():  # mujoco_warp raises nconmax for heightfields and says so
                 warnings.filterwarnings("ignore", message=".*Value for nconmax is changed")
                 self.solver = newton.solvers.SolverMuJoCo(
-                    self.model, use_mujoco_contacts=options.contacts == "mujoco", nconmax=200, njmax=600,
+                    self.model, use_mujoco_contacts=options.contacts == "mujoco", nconmax=NCONMAX, njmax=NJMAX,
                     cone="pyramidal", impratio=physics.impratio, integrator="implicitfast")
         else:
             self.solver = newton.solvers.SolverFeatherstone(self.model)
@@ -109,7 +114,7 @@ class NewtonWorlds:
         self._shape_body = self.model.shape_body.numpy()
         self._shape_margin = self.model.shape_margin.numpy()
         self._geom_shape = getattr(self.solver, "mjc_geom_to_newton_shape", None)
-        shape_body = self.model.shape_body.numpy()
+        shape_body = self._shape_body
         foot_bodies = [bodies.index(f) for f in robot.foot_links]
         fall_bodies = [bodies.index(b) for b in robot.fall.contact_links]
         local_body = np.where(shape_body >= 0, shape_body % self._bodies_per_world, -1)
@@ -245,11 +250,12 @@ class NewtonWorlds:
 
     def states(self) -> list[RobotState]:
         """The RobotState of every world."""
-        body_q = self._state.body_q.numpy().reshape(self.worlds, self._bodies_per_world, 7)[:, 0].astype(np.float64)
+        all_body_q = self._state.body_q.numpy().astype(np.float64)  # read once: contacts need every body's pose
+        body_q = all_body_q.reshape(self.worlds, self._bodies_per_world, 7)[:, 0]
         body_qd = self._state.body_qd.numpy().reshape(self.worlds, self._bodies_per_world, 6)[:, 0].astype(np.float64)
         q = self._state.joint_q.numpy().reshape(self.worlds, self._coords)[:, self._q_idx].astype(np.float64)
         qd = self._state.joint_qd.numpy().reshape(self.worlds, self._dofs)[:, self._qd_idx].astype(np.float64)
-        feet, falls = self._contacts()
+        feet, falls = self._contacts(all_body_q)
         quat = body_q[:, [6, 3, 4, 5]]  # x, y, z, w -> w, x, y, z
         to_base = world_to_base_batch(quat)
         omega = body_qd[:, 3:]
@@ -264,12 +270,12 @@ class NewtonWorlds:
                            fall_contact=bool(falls[w]))
                 for w in range(self.worlds)]
 
-    def _contacts(self) -> tuple[np.ndarray, np.ndarray]:
+    def _contacts(self, body_q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Which feet of each world touch the terrain, and whether a fall link does."""
         feet = np.zeros((self.worlds, len(self.robot.foot_links)), dtype=bool)
         falls = np.zeros(self.worlds, dtype=bool)
         if self.contacts is not None:
-            s1, s2 = self._newton_contacts()
+            s1, s2 = self._newton_contacts(body_q)
         else:
             s1, s2 = self._mujoco_contacts()
         # the robot's shape in a robot-terrain pair (terrain shapes belong to no world);
@@ -281,13 +287,12 @@ class NewtonWorlds:
         falls[world[self._shape_falls[robot_shape]]] = True
         return feet, falls
 
-    def _newton_contacts(self) -> tuple[np.ndarray, np.ndarray]:
+    def _newton_contacts(self, body_q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Shape pairs touching (surface separation <= 0) in Newton's own contact buffer, which
         also holds pairs within the detection gap."""
         c = self.contacts
         count = int(c.rigid_contact_count.numpy()[0])
         s0, s1 = c.rigid_contact_shape0.numpy()[:count], c.rigid_contact_shape1.numpy()[:count]
-        body_q = self._state.body_q.numpy().astype(np.float64)
 
         def to_world(shape: np.ndarray, point: np.ndarray) -> np.ndarray:
             body = self._shape_body[shape]

@@ -361,7 +361,7 @@ def cmd_train(values: dict, rewards: dict) -> int:
         raise CliError(f"--init-from '{config.init_from}' not found; give a policy.npz written by bench train")
     with Interruption(grace_s=30.0, what="training (it saves and evaluates the policy so far)") as stop:
         try:
-            path = train(config, stop=lambda: stop.requested)
+            path = train(config, stop=lambda: stop.requested, command=_as_typed("train"))
         except KeyboardInterrupt:
             print(f"bench: interrupted: the last periodic policy is in {config.out_dir}", file=sys.stderr)
             return 130

@@ -109,9 +109,10 @@ def load_actor_into(model, actor: MlpActor) -> None:
             layer.bias.copy_(torch.as_tensor(b))
 
 
-def train(config: TrainConfig, stop: Callable[[], bool] = lambda: False) -> Path:
+def train(config: TrainConfig, stop: Callable[[], bool] = lambda: False, command: str = "bench train") -> Path:
     """Train, evaluating every `eval_every` steps and once at the end; returns the policy.npz path.
-    Training ends early (saved and evaluated as usual) once `stop()` is true."""
+    Training ends early (saved and evaluated as usual) once `stop()` is true; `command` is recorded
+    in policy.json as the line that made it."""
     import torch
     import torch.nn as nn
     from stable_baselines3 import PPO
@@ -144,7 +145,6 @@ def train(config: TrainConfig, stop: Callable[[], bool] = lambda: False) -> Path
     if init_from is not None:
         load_actor_into(model, MlpActor.load(init_from))
     started = time.perf_counter()
-    command = " ".join(["bench train", *sys.argv[2:]]) if sys.argv[1:2] == ["train"] else "bench train"
 
     def meta(done: int) -> dict:
         import gymnasium

@@ -33,6 +33,7 @@ METRICS = {  # column in the store -> (heading, aggregation, digits)
     "abs_drift_m": ("|drift| (m)", "mean", 2),
     "abs_heading_change_rad": ("|heading change| (rad)", "mean", 2),
     "knn_agreement": ("kNN agreement", "mean", 2),
+    "repeated_targets": ("repeated targets", "mean", 2),
     "input_tokens": ("input tokens", "mean", 0),
     "output_tokens": ("output tokens", "mean", 0),
     "gpt4_input_tokens": ("GPT-4 input tokens", "mean", 0),
@@ -83,10 +84,27 @@ def _with_spread(values: pd.Series, key: str, digits: int) -> str:
     return f"{mean:.{digits}f} ± {values.std(ddof=1) if len(values) > 1 else 0.0:.{digits}f}"
 
 
+def repeated_targets(row: pd.Series) -> float:
+    """For an LLM trial, the fraction of its evaluated control steps whose joint targets equal the
+    previous step's: 1.0 for a model stuck on one reply (as `hold` is by design), near 0 for a gait.
+    It tells a frozen model from a copying one where `knn_agreement` cannot: in a frozen state the
+    nearest example's answer is often the frozen action itself. NaN for other policies."""
+    if row.get("policy") != "llm" or not isinstance(row.get("traj_joint_target"), (list, np.ndarray)):
+        return float("nan")
+    targets = np.array([np.asarray(step, dtype=float) for step in row["traj_joint_target"]])
+    times = np.arange(1, len(targets) + 1) * float(row["control_dt"])
+    phase = targets[times > float(row["eval_start"]) + 1e-9]
+    if len(phase) < 2:
+        return float("nan")
+    return float(np.all(np.diff(phase, axis=0) == 0.0, axis=1).mean())
+
+
 def summary_table(frame: pd.DataFrame, spread: bool = True) -> pd.DataFrame:
     """One row per cell: trial count and the mean (or sum) of every metric present; with `spread`,
     rates carry their 95% Wilson interval and NWT, speed and distance their standard deviation."""
     frame = frame.assign(abs_drift_m=frame["lateral_drift_m"].abs())
+    if "traj_joint_target" in frame:
+        frame = frame.assign(repeated_targets=frame.apply(repeated_targets, axis=1))
     if "heading_change_rad" in frame:
         frame = frame.assign(abs_heading_change_rad=frame["heading_change_rad"].abs())
     axes = axes_of(frame)

@@ -9,11 +9,12 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 
 from benchmark.experiment import ExperimentError, available_experiments, load_experiment
-from benchmark.report import write_reports
+from benchmark.report import repeated_targets, summary_table, write_reports
 from benchmark.store import ResultStore, load_results
 from benchmark.sweep import run_sweep
 
@@ -209,3 +210,14 @@ def test_reference_rows_cover_the_llm_phase_from_the_same_state_and_tables_show_
     write_reports(frame, tmp_path / "reports")
     table = [line for line in (tmp_path / "reports" / "phase.md").read_text().splitlines() if line.startswith("| ")]
     assert all(" [" in line and "±" in line for line in table[1:]), table
+    repeated = summary_table(frame).set_index("controller")["repeated targets"]
+    assert repeated["hold"] == 1.0 and np.isnan(repeated["seed_policy"])  # frozen by design; not an LLM row
+
+
+def test_repeated_targets_tell_a_frozen_reply_from_a_gait():
+    row = {"policy": "llm", "control_dt": 0.1, "eval_start": 0.2}
+    still = [[0.0, 1.0]] * 2 + [[0.5, 0.5]] * 4  # the phase (steps at 0.3-0.6 s) repeats one reply
+    moving = [[0.0, 1.0]] * 2 + [[0.1 * i, 0.5] for i in range(4)]
+    assert repeated_targets(pd.Series({**row, "traj_joint_target": still})) == 1.0
+    assert repeated_targets(pd.Series({**row, "traj_joint_target": moving})) == 0.0
+    assert np.isnan(repeated_targets(pd.Series({**row, "policy": "rl", "traj_joint_target": still})))

@@ -187,6 +187,8 @@ def build_parser() -> argparse.ArgumentParser:
     lat.add_argument("--histories", nargs="+", type=int, default=[10, 50], help="history lengths (default 10 50)")
     lat.add_argument("--modes", nargs="+", default=list(LATENCY_MODES), choices=LATENCY_MODES,
                      help=f"history modes (default {' '.join(LATENCY_MODES)}; shifted is approximate)")
+    lat.add_argument("--drafts", nargs="+", default=[Runtime.draft], choices=("ngram", "none"),
+                     help=f"speculative decoding to measure (default {Runtime.draft}; 'ngram none' compares them)")
     lat.add_argument("--no-drift", action="store_true", help="skip the cold recompute of every prompt")
     lat.add_argument("--out", default=None, metavar="PATH.md", help="also write the table as a markdown report")
     lat.add_argument("--queries", type=_number(int, True), default=8, help="LLM queries per cell (default 8)")

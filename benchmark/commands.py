@@ -414,23 +414,28 @@ def cmd_latency(args, threads: int | None) -> int:
     from benchmark.llm.models import check_model_spec
 
     check_model_spec(args.llm)
-    rows = measure(args.llm, args.histories, args.modes, args.queries, threads, args.llm_url, drift=not args.no_drift)
+    rows = measure(args.llm, args.histories, args.modes, args.queries, threads, args.llm_url, drift=not args.no_drift,
+                   drafts=tuple(args.drafts))
     if args.json:
         print(json.dumps({"model": args.llm, "rows": rows}))
         return 0
     lines = [f"{args.llm}: query latency, {args.queries} queries per cell, reply cache off; drift: each reply "
              "against a cold recompute of the same prompt (identical fraction, mean |action difference|); "
-             "outcome: the shifted trial against the exact sliding one", "",
-             "| history | mode | prompt tokens | first (s) | mean (s) | p95 (s) | after the first (s) | "
-             "identical to cold | mean abs action diff | outcome |", "|---|---|---|---|---|---|---|---|---|---|"]
+             "outcome: the shifted trial against the exact sliding one; draft: speculative decoding (ngram or none), "
+             "same as undrafted: replies equal to the undrafted cell's, query by query", "",
+             "| history | mode | draft | prompt tokens | first (s) | mean (s) | p95 (s) | after the first (s) | "
+             "identical to cold | mean abs action diff | outcome | same as undrafted |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         after = f"{r['latency_after_first_s']:.2f}" if r["latency_after_first_s"] is not None else "-"
         same = f"{r['identical_to_cold']:.2f}" if r.get("identical_to_cold") is not None else "-"
         diff = f"{r['action_diff_vs_cold']:.3f}" if r.get("action_diff_vs_cold") is not None else "-"
         changed = {True: "changed", False: "same"}.get(r.get("outcome_changed"), "-")
         mode = r["mode"] + (" (approximate)" if r["approximate"] else "")
-        lines.append(f"| {r['history']} | {mode} | {r['prompt_tokens']:.0f} | {r['latency_first_s']:.2f} | "
-                     f"{r['latency_mean_s']:.2f} | {r['latency_p95_s']:.2f} | {after} | {same} | {diff} | {changed} |")
+        undrafted = f"{r['same_as_no_draft']:.2f}" if r.get("same_as_no_draft") is not None else "-"
+        lines.append(f"| {r['history']} | {mode} | {r['draft']} | {r['prompt_tokens']:.0f} | {r['latency_first_s']:.2f} | "
+                     f"{r['latency_mean_s']:.2f} | {r['latency_p95_s']:.2f} | {after} | {same} | {diff} | {changed} | "
+                     f"{undrafted} |")
     print("\n".join(lines))
     if args.out:
         Path(args.out).write_text(f"# LLM latency and drift by history mode\n\nMade with `bench {' '.join(args.argv)}` "

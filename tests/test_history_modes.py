@@ -28,7 +28,7 @@ def test_each_mode_gets_the_llamacpp_settings_it_needs(mode, reuse):
         policy = LLMPolicy.from_cell(cell, load_robot("a1"), resources)
         embedded = policy.model.inner  # under the reply cache
         assert embedded.cache_reuse == reuse and ("kv-shift" in embedded.id) == (reuse > 0)
-        assert embedded.threads == 1
+        assert embedded.threads == 1 and embedded.id.endswith(":ngram-draft")  # n-gram drafting by default
     finally:
         resources.close()
 
@@ -43,3 +43,11 @@ def test_the_drift_report_compares_every_reply_with_a_cold_recompute():
         assert row["queries"] == 3 and 0.0 <= row["identical_to_cold"] <= 1.0
         assert row["action_diff_vs_cold"] is None or row["action_diff_vs_cold"] >= 0.0
     assert "outcome_changed" in shifted and "outcome_changed" not in sliding
+
+
+def test_ngram_drafting_is_measured_against_decoding_without_it():
+    from benchmark.llm.latency import measure
+
+    drafted, plain = measure("embedded", [5], ["shifted"], queries=3, threads=2, drift=False, drafts=("ngram", "none"))
+    assert (drafted["draft"], plain["draft"]) == ("ngram", "none") and "same_as_no_draft" not in plain
+    assert drafted["same_as_no_draft"] >= 2 / 3  # greedy drafting keeps the reply (batch effects aside)

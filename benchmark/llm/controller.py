@@ -252,7 +252,7 @@ def _new_model(settings: LLMSettings, runtime: Runtime) -> LanguageModel:
     return make_model(settings.model, url=settings.url, layout=settings.layout, server=settings.server,
                       cache=runtime.cache,
                       threads=runtime.threads, requests_per_minute=runtime.requests_per_minute,
-                      cache_reuse=SHIFT_CHUNK if settings.approximate else 0)
+                      cache_reuse=SHIFT_CHUNK if settings.approximate else 0, draft=runtime.draft)
 
 
 def takeover_prompt(cell: CellSpec, seed: int = 0) -> str:

@@ -10,6 +10,10 @@ llama.cpp's KV-cache shifting: cached chunks are moved to their new positions in
 recomputed, which is an APPROXIMATION: their keys and values were computed with the dropped
 pair still in context).
 
+Drafts: `ngram` (the default) is llama.cpp's n-gram speculative decoding, which drafts the reply
+from earlier tokens and checks the draft in one batch; `--drafts ngram none` measures both and
+how many replies the draft changes.
+
 Drift: every reply of every row is compared with a cold recompute of the same prompt (no
 cache at all): the fraction of identical replies and the mean absolute difference of the
 decoded actions. For `shifted`, `outcome_changed` says whether the trial ended differently
@@ -46,14 +50,15 @@ def _drift(policy) -> dict:
 
 
 def measure(model_spec: str, histories: list[int], modes: list[str], queries: int, threads: int | None = None,
-            url: str | None = None, drift: bool = True) -> list[dict]:
-    """One row per (history, mode): latency of `queries` live queries after the seed policy filled the history.
-    Every cell loads its own model, so none starts from what another cell (or a cold recompute) left in
-    llama.cpp's cache: a shifted cell that followed another's cold recomputes measured 27 s instead of 2 s."""
-    rows = []
-    cells = [(h, m) for h in histories for m in modes]
-    for history, mode in tqdm(cells, desc="latency cells", file=sys.stderr, disable=None):
-        resources = Resources(Runtime(threads=threads, cache=False))
+            url: str | None = None, drift: bool = True, drafts: tuple[str, ...] = (Runtime.draft,)) -> list[dict]:
+    """One row per (history, mode, draft): latency of `queries` live queries after the seed policy filled the
+    history. Every cell loads its own model, so none starts from what another cell (or a cold recompute) left
+    in llama.cpp's cache: a shifted cell that followed another's cold recomputes measured 27 s instead of 2 s.
+    With both drafts, `same_as_no_draft` is the fraction of replies equal to the undrafted cell's, query by query."""
+    rows, replies = [], {}
+    cells = [(h, m, d) for h in histories for m in modes for d in drafts]
+    for history, mode, draft in tqdm(cells, desc="latency cells", file=sys.stderr, disable=None):
+        resources = Resources(Runtime(threads=threads, cache=False, draft=draft))
         try:
             takeover = round(LLMSettings().seed_start + CONTROL_DT * history, 1)
             settings = LLMSettings(model=model_spec, url=url, history=history, history_mode=mode, llm_after=takeover)
@@ -63,7 +68,9 @@ def measure(model_spec: str, histories: list[int], modes: list[str], queries: in
             trial = run_cell(cell, [0], resources, hooks=[watch])[0]
             policy = watch.policy
             latency = np.array([q.reply.latency_s for q in policy.queries])
-            row = {"history": history, "mode": mode, "approximate": settings.approximate, "queries": len(latency),
+            replies[history, mode, draft] = [q.reply.text for q in policy.queries]
+            row = {"history": history, "mode": mode, "draft": draft, "approximate": settings.approximate,
+                   "queries": len(latency),
                    "prompt_tokens": float(np.mean([q.reply.prompt_tokens for q in policy.queries])),
                    "latency_first_s": float(latency[0]), "latency_mean_s": float(latency.mean()),
                    "latency_p95_s": float(np.percentile(latency, 95)),
@@ -75,7 +82,12 @@ def measure(model_spec: str, histories: list[int], modes: list[str], queries: in
         finally:
             resources.close()
     for row in rows:
-        exact = next((r for r in rows if r["history"] == row["history"] and r["mode"] == "sliding"), None)
+        plain = replies.get((row["history"], row["mode"], "none"))
+        if row["draft"] != "none" and plain is not None:
+            mine = replies[row["history"], row["mode"], row["draft"]]
+            row["same_as_no_draft"] = sum(a == b for a, b in zip(mine, plain)) / max(1, min(len(mine), len(plain)))
+        exact = next((r for r in rows if r["history"] == row["history"] and r["mode"] == "sliding"
+                      and r["draft"] == row["draft"]), None)
         if row["approximate"] and exact is not None:
             row["outcome_changed"] = (row["success"], round(row["nwt"], 6)) != (exact["success"], round(exact["nwt"], 6))
     return rows

@@ -87,13 +87,18 @@ def default_threads() -> int:
     return os.cpu_count() or 1
 
 
+DRAFT_TOKENS = 16  # the longest n-gram draft checked at once (a reply is ~56 tokens)
+
+
 class EmbeddedModel:
     """A local GGUF model run in-process by llama.cpp (the prebuilt `xllamacpp` wheel)."""
 
     def __init__(self, path: str | None = None, threads: int | None = None, context: int = 16384,
-                 listen_port: int | None = None, cache_reuse: int = 0, parallel: int = 1) -> None:
+                 listen_port: int | None = None, cache_reuse: int = 0, parallel: int = 1, draft: str = "none") -> None:
         """`cache_reuse` > 0 turns on llama.cpp's KV-cache shifting (chunks of at least that many tokens
-        are moved to their new positions instead of recomputed): fast, and an approximation."""
+        are moved to their new positions instead of recomputed): fast, and an approximation. `draft`
+        "ngram" turns on llama.cpp's n-gram speculative decoding: drafts copied from earlier tokens are
+        checked in one batch, so a reply that repeats the history's numbers decodes in a few steps."""
         import xllamacpp
 
         if path is None:
@@ -105,7 +110,8 @@ class EmbeddedModel:
         weights = Path(path)
         self.cache_reuse = cache_reuse
         # the id keys the reply cache: shifted replies may differ from exact ones for the same prompt
-        self.id = f"embedded:{weights.name}:{weights.stat().st_size}" + (f":kv-shift{cache_reuse}" if cache_reuse else "")
+        self.id = (f"embedded:{weights.name}:{weights.stat().st_size}" + (f":kv-shift{cache_reuse}" if cache_reuse else "")
+                   + (":ngram-draft" if draft == "ngram" else ""))
         params = xllamacpp.CommonParams()
         params.model.path = str(weights)
         params.n_ctx = context
@@ -115,6 +121,11 @@ class EmbeddedModel:
         params.cpuparams.n_threads = params.cpuparams_batch.n_threads = threads or default_threads()
         params.hostnames = ["127.0.0.1"]
         params.port = listen_port or 0
+        if draft == "ngram":
+            params.speculative.types = [xllamacpp.common_speculative_type.COMMON_SPECULATIVE_TYPE_NGRAM_SIMPLE]
+            params.speculative.draft.n_max = DRAFT_TOKENS
+        elif draft != "none":
+            raise ValueError(f"unknown draft '{draft}'; valid: ngram, none")
         if cache_reuse:
             params.swa_full = True  # Gemma 3's sliding-window layers otherwise forbid moving cached chunks
             params.n_cache_reuse = cache_reuse
@@ -122,9 +133,9 @@ class EmbeddedModel:
         self._server = xllamacpp.Server(params)
 
     @classmethod
-    def from_spec(cls, name: str | None, threads: int | None = None, cache_reuse: int = 0,
+    def from_spec(cls, name: str | None, threads: int | None = None, cache_reuse: int = 0, draft: str = "none",
                   **_: object) -> EmbeddedModel:
-        return cls(name, threads=threads, cache_reuse=cache_reuse)
+        return cls(name, threads=threads, cache_reuse=cache_reuse, draft=draft)
 
     @property
     def url(self) -> str:
@@ -335,7 +346,7 @@ def check_model_spec(spec: str) -> None:
 
 def make_model(spec: str, url: str | None = None, api_key: str | None = None, layout: str = "completions",
                cache: bool = True, threads: int | None = None, requests_per_minute: float | None = None,
-               cache_reuse: int = 0, server: str = "auto") -> LanguageModel:
+               cache_reuse: int = 0, server: str = "auto", draft: str = "none") -> LanguageModel:
     """A model from its spec (see MODEL_FORMS), wrapped in the on-disk reply cache unless `cache` is off."""
     from sims import load_entry_point
 
@@ -343,5 +354,6 @@ def make_model(spec: str, url: str | None = None, api_key: str | None = None, la
     kind, _, name = spec.partition(":")
     cls = load_entry_point(MODELS[kind])
     model = cls.from_spec(name or None, url=url, api_key=api_key, layout=layout, threads=threads,
-                          requests_per_minute=requests_per_minute, cache_reuse=cache_reuse, server=server)
+                          requests_per_minute=requests_per_minute, cache_reuse=cache_reuse, server=server,
+                          draft=draft)
     return CachedModel(model) if cache and getattr(cls, "cacheable", True) else model

@@ -146,34 +146,39 @@ def to_markdown(table: pd.DataFrame) -> str:
 
 
 def bar_figure(frame: pd.DataFrame, table: pd.DataFrame, path: Path, title: str) -> Path:
-    """NWT and success rate per cell, as bars (grouped by engine when engines are an axis)."""
+    """NWT and success rate per cell, as bars grouped by the other axes, one colour per engine (when
+    engines are an axis) or per controller (an ablation beside its reference rows). A controller that
+    does not use the ablated setting (the seed policy) is a dashed line across the panel."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     axes = axes_of(frame)
-    hue = "sim" if "sim" in axes and len(axes) > 1 else None
+    hue = next((a for a in ("sim", "controller") if a in axes and len(axes) > 1), None)
     groups = [a for a in axes if a != hue]
     labels = table[groups].astype(str).agg("\n".join, axis=1) if groups else pd.Series(["all"] * len(table))
-    x_labels = list(dict.fromkeys(labels))
-    hues = list(dict.fromkeys(table[hue])) if hue else [None]
+    flat = labels.str.fullmatch(r"[-\n]+") if hue == "controller" else labels.map(lambda _: False)
+    x_labels = list(dict.fromkeys(labels[~flat]))
+    hues = list(dict.fromkeys(table.loc[~flat, hue])) if hue else [None]
     fig, panels = plt.subplots(1, 2, figsize=(max(6.0, 1.1 * len(x_labels) * max(1, len(hues)) ** 0.5 + 3), 3.6),
                                constrained_layout=True)
     width = 0.8 / len(hues)
     for panel, metric in zip(panels, ("NWT", "success rate")):
         for i, h in enumerate(hues):
-            rows = table if h is None else table[table[hue] == h]
+            rows = table[~flat] if h is None else table[~flat & (table[hue] == h)]
             row_labels = labels[rows.index]
             xs = [x_labels.index(label) + (i - (len(hues) - 1) / 2) * width for label in row_labels]
             panel.bar(xs, rows[metric], width=width * 0.95, label=h)
+        for _, row in table[flat].iterrows():
+            panel.axhline(float(row[metric]), color="k", ls="--", lw=1, label=f"{row[hue]} (all cells)")
         panel.set_xticks(range(len(x_labels)), x_labels, fontsize=8)
         panel.set_ylim(0, 1.05)
         panel.set_title(metric)
         panel.grid(axis="y", alpha=0.3)
     if hue:
-        fig.legend(*panels[0].get_legend_handles_labels(), loc="outside right center", fontsize=8, title="engine",
-                   title_fontsize=8)
+        fig.legend(*panels[0].get_legend_handles_labels(), loc="outside right center", fontsize=8,
+                   title={"sim": "engine"}.get(hue, hue), title_fontsize=8)
     fig.suptitle(title, fontsize=10)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)

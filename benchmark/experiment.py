@@ -14,6 +14,11 @@
     [variants.description]       # optional: named bundles of settings, one axis of the grid
     D1 = { prompt_parts = ["task"] }
 
+    [paper]                      # optional: the published figures per value of one axis
+    axis = "encoding"
+    source = "Wang et al. 2023, GPT-4"
+    nwt = { E1 = 0.137, E2 = 0.086, E3 = 0.700, E4 = 0.504, E5 = 0.721 }
+
 A cell is one `CellSpec` (engine, robot, terrain, policy and its settings); a trial is a
 cell and a seed. Settings that only another policy reads are dropped from a cell, so a grid
 over encodings does not run the seed policy five times.
@@ -67,6 +72,7 @@ class Experiment:
     variants: dict  # axis -> {variant name -> settings}
     seeds: tuple[int, ...]
     source: Path | None = None
+    paper: dict = field(default_factory=dict)  # {"axis", "source", metric -> {axis value (text) -> figure}}
 
     @property
     def axes(self) -> list[str]:
@@ -139,7 +145,7 @@ def load_experiment(name_or_path: str) -> Experiment:
         data = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as err:
         raise ExperimentError(f"{path}: not valid TOML: {err}") from None
-    allowed = {"name", "title", "seeds", "fixed", "grid", "variants"}
+    allowed = {"name", "title", "seeds", "fixed", "grid", "variants", "paper"}
     unknown = [k for k in data if k not in allowed]
     if unknown:
         raise ExperimentError(f"{path}: unknown key '{unknown[0]}'; valid: {', '.join(sorted(allowed))}")
@@ -152,6 +158,7 @@ def load_experiment(name_or_path: str) -> Experiment:
             if missing:
                 raise ExperimentError(f"{path}: grid.{axis} names variant '{missing[0]}', not in "
                                       f"[variants.{axis}]: {', '.join(variants[axis])}")
+    paper = _paper_figures(path, data.get("paper", {}), grid)
     seeds = data.get("seeds", [0, 1, 2, 3, 4])
     if isinstance(seeds, int):
         seeds = list(range(seeds))
@@ -159,7 +166,7 @@ def load_experiment(name_or_path: str) -> Experiment:
         raise ExperimentError(f"{path}: seeds must be a count or a list of integers")
     experiment = Experiment(name=data.get("name", path.stem), title=data.get("title", path.stem),
                             fixed=data.get("fixed", {}), grid=grid,
-                            variants=variants, seeds=tuple(seeds), source=path)
+                            variants=variants, seeds=tuple(seeds), source=path, paper=paper)
     try:
         experiment.trials()  # every cell must build: unknown settings fail here, before any trial runs
     except ExperimentError:
@@ -167,3 +174,29 @@ def load_experiment(name_or_path: str) -> Experiment:
     except ValueError as err:
         raise ExperimentError(f"{path}: {err}") from None
     return experiment
+
+
+PAPER_METRICS = ("nwt", "success", "gpt4_input_tokens", "gpt4_output_tokens")
+
+
+def _paper_figures(path: Path, paper: dict, grid: dict) -> dict:
+    """The `[paper]` table checked: one grid axis, figures keyed by that axis's values (as text)."""
+    if not paper:
+        return {}
+    axis = paper.get("axis")
+    if axis not in grid:
+        raise ExperimentError(f"{path}: paper.axis must name a grid axis ({', '.join(grid)}), got {axis!r}")
+    values = {str(v) for v in grid[axis]}
+    out = {"axis": axis, "source": str(paper.get("source", "the paper"))}
+    for key, figures in paper.items():
+        if key in ("axis", "source"):
+            continue
+        if key not in PAPER_METRICS or not isinstance(figures, dict):
+            raise ExperimentError(f"{path}: paper.{key}: expected a table of figures for one of "
+                                  f"{', '.join(PAPER_METRICS)}")
+        stray = [k for k in figures if k not in values]
+        if stray or not all(isinstance(v, (int, float)) for v in figures.values()):
+            raise ExperimentError(f"{path}: paper.{key} needs numbers keyed by grid.{axis} values "
+                                  f"({', '.join(sorted(values))})" + (f", not '{stray[0]}'" if stray else ""))
+        out[key] = {k: float(v) for k, v in figures.items()}
+    return out

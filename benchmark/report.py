@@ -145,10 +145,43 @@ def to_markdown(table: pd.DataFrame) -> str:
     return "\n".join([head, rule, *rows])
 
 
-def bar_figure(frame: pd.DataFrame, table: pd.DataFrame, path: Path, title: str) -> Path:
+def paper_key(value) -> str:
+    """An axis value as the `[paper]` table keys it: 50.0 and 50 are both "50"."""
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        return str(value)
+    return f"{number:g}"
+
+
+def paper_table(frame: pd.DataFrame, paper: dict) -> pd.DataFrame | None:
+    """The paper's figures per value of its axis, beside this store's: success / NWT of each LLM
+    controller, and the GPT-4 token counts of this store's prompts (cl100k)."""
+    axis = paper.get("axis")
+    if not axis or axis not in frame:
+        return None
+    names = {"nwt": "NWT", "success": "success", "gpt4_input_tokens": "GPT-4 input tokens",
+             "gpt4_output_tokens": "GPT-4 output tokens"}
+    llm = frame[frame["policy"] == "llm"]
+    who = "controller" if "controller" in llm and llm["controller"].notna().any() else "model"
+    rows = []
+    for value in dict.fromkeys(llm[axis].dropna()):
+        key, cell = paper_key(value), llm[llm[axis] == value]
+        row = {axis: key, **{f"paper {names[m]}": paper[m].get(key, np.nan) for m in names if m in paper}}
+        for name, trials in cell.groupby(who, sort=False):
+            row[f"{name}: success / NWT"] = f"{trials['success'].mean():.2f} / {trials['nwt'].mean():.3f}"
+        for m in ("gpt4_input_tokens", "gpt4_output_tokens"):
+            if m in paper and m in cell:
+                row[f"ours: {names[m]}"] = round(float(cell[m].mean()))
+        rows.append(row)
+    return pd.DataFrame(rows) if rows else None
+
+
+def bar_figure(frame: pd.DataFrame, table: pd.DataFrame, path: Path, title: str, paper: dict | None = None) -> Path:
     """NWT and success rate per cell, as bars grouped by the other axes, one colour per engine (when
     engines are an axis) or per controller (an ablation beside its reference rows). A controller that
-    does not use the ablated setting (the seed policy) is a dashed line across the panel."""
+    does not use the ablated setting (the seed policy) is a dashed line across the panel; the paper's
+    figures (the experiment's `[paper]` table), where it gives them, are black crosses."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -172,6 +205,11 @@ def bar_figure(frame: pd.DataFrame, table: pd.DataFrame, path: Path, title: str)
             panel.bar(xs, rows[metric], width=width * 0.95, label=h)
         for _, row in table[flat].iterrows():
             panel.axhline(float(row[metric]), color="k", ls="--", lw=1, label=f"{row[hue]} (all cells)")
+        published = (paper or {}).get({"NWT": "nwt", "success rate": "success"}[metric], {})
+        if published and groups == [paper.get("axis")]:
+            marks = [(i, published[paper_key(label)]) for i, label in enumerate(x_labels) if paper_key(label) in published]
+            if marks:
+                panel.plot(*zip(*marks), "kx", ms=9, mew=2, label=paper.get("source", "paper"))
         panel.set_xticks(range(len(x_labels)), x_labels, fontsize=8)
         panel.set_ylim(0, 1.05)
         panel.set_title(metric)
@@ -233,13 +271,14 @@ def trajectory_figure(frame: pd.DataFrame, path: Path) -> Path | None:
     return path
 
 
-def _title_and_command(name: str, frame: pd.DataFrame) -> tuple[str, list[str]]:
+def _title_command_paper(name: str, frame: pd.DataFrame) -> tuple[str, list[str], dict]:
     try:
-        title = load_experiment(name).title
+        experiment = load_experiment(name)
+        title, paper = experiment.title, experiment.paper
     except ExperimentError:
-        title = name
+        title, paper = name, {}
     commands = [c for c in frame.get("sweep_command", pd.Series(dtype=str)).dropna().unique()]
-    return title, commands
+    return title, commands, paper
 
 
 class ReportConflict(ValueError):
@@ -277,8 +316,9 @@ def write_reports(frame: pd.DataFrame, out: Path, fmt: str = "md", force: bool =
         group = group.sort_values(["cell_index", "seed"]).reset_index(drop=True)
         table, engines = summary_table(group), engine_table(group)
         numbers = summary_table(group, spread=False)
-        title, commands = _title_and_command(str(name), group)
-        bars = bar_figure(group, numbers, out / "figures" / f"{name}_bars.png", title)
+        title, commands, paper = _title_command_paper(str(name), group)
+        published = paper_table(group, paper) if paper else None
+        bars = bar_figure(group, numbers, out / "figures" / f"{name}_bars.png", title, paper)
         traj = trajectory_figure(group, out / "figures" / f"{name}_trajectories.png")
         figures = [p for p in (bars, traj) if p is not None]
         path = out / f"{name}.{fmt}"
@@ -289,10 +329,13 @@ def write_reports(frame: pd.DataFrame, out: Path, fmt: str = "md", force: bool =
                      table.to_html(index=False)]
             if engines is not None:
                 parts += ["<h2>Engines side by side (success / NWT)</h2>", engines.to_html(index=False)]
+            if published is not None:
+                parts += [f"<h2>Beside the paper ({paper['source']})</h2>", published.to_html(index=False)]
             parts += [f'<img src="figures/{p.name}" alt="{p.stem}">' for p in figures]
             path.write_text("\n".join(parts) + "\n")
         else:
-            path.write_text(_markdown_report(str(name), title, commands, group, table, engines, figures))
+            path.write_text(_markdown_report(str(name), title, commands, group, table, engines, figures,
+                                             published, paper.get("source", "")))
         written += [path, *figures]
     return written
 
@@ -306,7 +349,8 @@ def _walking_text(group: pd.DataFrame) -> str:
 
 
 def _markdown_report(name: str, title: str, commands: list[str], group: pd.DataFrame, table: pd.DataFrame,
-                     engines: pd.DataFrame | None, figures: list[Path]) -> str:
+                     engines: pd.DataFrame | None, figures: list[Path], published: pd.DataFrame | None = None,
+                     source: str = "") -> str:
     versions = json.loads(group["versions"].dropna().iloc[0]) if "versions" in group and group["versions"].notna().any() else {}
     commits = sorted(str(c)[:10] for c in group.get("git_commit", pd.Series(dtype=str)).dropna().unique())
     lines = [f"# {title}", "",
@@ -326,6 +370,9 @@ def _markdown_report(name: str, title: str, commands: list[str], group: pd.DataF
     lines += ["", to_markdown(table)]
     if engines is not None:
         lines += ["", "Engines side by side (success rate / NWT):", "", to_markdown(engines)]
+    if published is not None:
+        lines += ["", f"Beside the paper ({source}; its figures as published, ours from this store; GPT-4 token "
+                      "counts are cl100k on this store's prompts):", "", to_markdown(published)]
     lines += ["", *[f"![{p.stem}](figures/{p.name})" for p in figures], ""]
     if versions or commits:
         lines += [f"Versions: {', '.join(f'{k} {v}' for k, v in versions.items())}; "

@@ -14,7 +14,7 @@ import pandas as pd
 import pytest
 
 from benchmark.experiment import ExperimentError, available_experiments, load_experiment
-from benchmark.report import repeated_targets, summary_table, write_reports
+from benchmark.report import bar_figure, paper_table, repeated_targets, summary_table, write_reports
 from benchmark.store import ResultStore, load_results
 from benchmark.sweep import run_sweep
 
@@ -77,6 +77,10 @@ def test_shipped_experiments_expand_into_the_papers_grids():
     ("seeds = 'five'\n", "seeds must be a count or a list of integers"),
     ("[grid\n", "not valid TOML"),
     ("tittle = 'x'\n", "unknown key 'tittle'"),
+    ("[grid]\nhistory = [0, 10]\n[paper]\naxis = 'encoding'\n", "paper.axis must name a grid axis (history)"),
+    ("[grid]\nhistory = [0, 10]\n[paper]\naxis = 'history'\nnwt = { 20 = 0.5 }\n",
+     "paper.nwt needs numbers keyed by grid.history values (0, 10), not '20'"),
+    ("[grid]\nhistory = [0, 10]\n[paper]\naxis = 'history'\nspeed = { 0 = 0.5 }\n", "paper.speed: expected a table"),
 ])
 def test_malformed_experiment_files_are_one_clear_line(tmp_path, text, message):
     path = tmp_path / "bad.toml"
@@ -212,6 +216,26 @@ def test_reference_rows_cover_the_llm_phase_from_the_same_state_and_tables_show_
     assert all(" [" in line and "±" in line for line in table[1:]), table
     repeated = summary_table(frame).set_index("controller")["repeated targets"]
     assert repeated["hold"] == 1.0 and np.isnan(repeated["seed_policy"])  # frozen by design; not an LLM row
+
+
+def test_the_papers_figures_stand_beside_the_stores_in_table_and_figure(tmp_path):
+    path = tmp_path / "paper.toml"
+    path.write_text('name = "paper"\nseeds = [0]\n[fixed]\nduration = 2.5\nllm_after = 2.0\nseed_start = 1.0\n'
+                    '[grid]\ncontroller = ["seed_policy", "hold"]\nhistory = [5, 10]\n[variants.controller]\n'
+                    'seed_policy = { policy = "rl" }\nhold = { policy = "llm", model = "hold" }\n'
+                    '[paper]\naxis = "history"\nsource = "a paper"\nnwt = { 5 = 0.25, 10 = 0.75 }\n')
+    run_sweep(load_experiment(str(path)).trials(), ResultStore(tmp_path / "store"), workers=1)
+    frame = load_results(tmp_path / "store")
+    published = paper_table(frame, load_experiment(str(path)).paper)
+    assert list(published["history"]) == ["5", "10"] and list(published["paper NWT"]) == [0.25, 0.75]
+    assert published["hold: success / NWT"].str.startswith("0.00 / ").all()
+    paper = load_experiment(str(path)).paper
+    assert bar_figure(frame, summary_table(frame, spread=False), tmp_path / "bars.png", "t", paper).is_file()
+    # The shipped ablations carry the paper's figures into their reports (here from the committed store).
+    committed = load_results(Path(__file__).parents[1] / "reports" / "data" / "history.parquet")
+    write_reports(committed, tmp_path / "reports", fmt="md")
+    text = (tmp_path / "reports" / "history.md").read_text()
+    assert "Beside the paper (Wang et al. 2023, GPT-4" in text and "| 50 | 7298 |" in text
 
 
 def test_repeated_targets_tell_a_frozen_reply_from_a_gait():

@@ -19,6 +19,7 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
+from benchmark.llm.models import DEFAULT_DRAFT, DRAFTS
 from benchmark.policies import POLICIES, Policy, available_policies, build_policy, policy_entry
 from benchmark.runner import EpisodeConfig, StepCallback, TrialResult, run_trial
 from benchmark.settings import SettingError, build, check, coerce, hints, setting
@@ -145,10 +146,10 @@ class Runtime:
 
     threads: int | None = setting(None, "llama.cpp threads (default: all cores, or cores / workers in a sweep)",
                                   positive=True)
-    draft: str = setting("ngram", "embedded models: speculative decoding. ngram drafts the reply from token "
+    draft: str = setting(DEFAULT_DRAFT, "embedded models: speculative decoding. ngram drafts the reply from token "
                                   "n-grams already in the prompt (llama.cpp's ngram-simple: replies repeat the "
                                   "history's numbers) and checks the draft in one batch; none decodes token by token",
-                         choices=("ngram", "none"))
+                         choices=DRAFTS)
     cache: bool = True  # the on-disk LLM reply cache
     requests_per_minute: float | None = None  # remote LLM servers: at most this many queries a minute
     price_in: float | None = setting(None, "USD per 1M input tokens, for a cost estimate", minimum=0)

@@ -25,6 +25,7 @@ from benchmark.commands import CliError
 from benchmark.policies import POLICIES
 from benchmark.settings import build, choices_of, hints, kind_of
 from benchmark.llm.latency import MODES as LATENCY_MODES
+from benchmark.llm.models import DRAFTS
 from benchmark.train import TrainConfig
 from benchmark.gait import GaitConfig
 from benchmark.validate import ValidateConfig
@@ -187,7 +188,7 @@ def build_parser() -> argparse.ArgumentParser:
     lat.add_argument("--histories", nargs="+", type=int, default=[10, 50], help="history lengths (default 10 50)")
     lat.add_argument("--modes", nargs="+", default=list(LATENCY_MODES), choices=LATENCY_MODES,
                      help=f"history modes (default {' '.join(LATENCY_MODES)}; shifted is approximate)")
-    lat.add_argument("--drafts", nargs="+", default=[Runtime.draft], choices=("ngram", "none"),
+    lat.add_argument("--drafts", nargs="+", default=[Runtime.draft], choices=DRAFTS,
                      help=f"speculative decoding to measure (default {Runtime.draft}; 'ngram none' compares them)")
     lat.add_argument("--no-drift", action="store_true", help="skip the cold recompute of every prompt")
     lat.add_argument("--out", default=None, metavar="PATH.md", help="also write the table as a markdown report")

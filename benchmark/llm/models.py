@@ -87,6 +87,8 @@ def default_threads() -> int:
     return os.cpu_count() or 1
 
 
+DRAFTS = ("ngram", "none")  # speculative decoding of the embedded model
+DEFAULT_DRAFT = "ngram"
 DRAFT_TOKENS = 16  # the longest n-gram draft checked at once (a reply is ~56 tokens)
 
 
@@ -94,7 +96,8 @@ class EmbeddedModel:
     """A local GGUF model run in-process by llama.cpp (the prebuilt `xllamacpp` wheel)."""
 
     def __init__(self, path: str | None = None, threads: int | None = None, context: int = 16384,
-                 listen_port: int | None = None, cache_reuse: int = 0, parallel: int = 1, draft: str = "none") -> None:
+                 listen_port: int | None = None, cache_reuse: int = 0, parallel: int = 1,
+                 draft: str = DEFAULT_DRAFT) -> None:
         """`cache_reuse` > 0 turns on llama.cpp's KV-cache shifting (chunks of at least that many tokens
         are moved to their new positions instead of recomputed): fast, and an approximation. `draft`
         "ngram" turns on llama.cpp's n-gram speculative decoding: drafts copied from earlier tokens are
@@ -124,8 +127,8 @@ class EmbeddedModel:
         if draft == "ngram":
             params.speculative.types = [xllamacpp.common_speculative_type.COMMON_SPECULATIVE_TYPE_NGRAM_SIMPLE]
             params.speculative.draft.n_max = DRAFT_TOKENS
-        elif draft != "none":
-            raise ValueError(f"unknown draft '{draft}'; valid: ngram, none")
+        elif draft not in DRAFTS:
+            raise ValueError(f"unknown draft '{draft}'; valid: {', '.join(DRAFTS)}")
         if cache_reuse:
             params.swa_full = True  # Gemma 3's sliding-window layers otherwise forbid moving cached chunks
             params.n_cache_reuse = cache_reuse
@@ -133,8 +136,8 @@ class EmbeddedModel:
         self._server = xllamacpp.Server(params)
 
     @classmethod
-    def from_spec(cls, name: str | None, threads: int | None = None, cache_reuse: int = 0, draft: str = "none",
-                  **_: object) -> EmbeddedModel:
+    def from_spec(cls, name: str | None, threads: int | None = None, cache_reuse: int = 0,
+                  draft: str = DEFAULT_DRAFT, **_: object) -> EmbeddedModel:
         return cls(name, threads=threads, cache_reuse=cache_reuse, draft=draft)
 
     @property
@@ -346,7 +349,7 @@ def check_model_spec(spec: str) -> None:
 
 def make_model(spec: str, url: str | None = None, api_key: str | None = None, layout: str = "completions",
                cache: bool = True, threads: int | None = None, requests_per_minute: float | None = None,
-               cache_reuse: int = 0, server: str = "auto", draft: str = "none") -> LanguageModel:
+               cache_reuse: int = 0, server: str = "auto", draft: str = DEFAULT_DRAFT) -> LanguageModel:
     """A model from its spec (see MODEL_FORMS), wrapped in the on-disk reply cache unless `cache` is off."""
     from sims import load_entry_point
 

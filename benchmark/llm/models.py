@@ -134,6 +134,7 @@ class EmbeddedModel:
             params.n_cache_reuse = cache_reuse
         self.threads = params.cpuparams.n_threads
         self._server = xllamacpp.Server(params)
+        self._answered = False  # see close()
 
     @classmethod
     def from_spec(cls, name: str | None, threads: int | None = None, cache_reuse: int = 0,
@@ -156,6 +157,7 @@ class EmbeddedModel:
         start = time.perf_counter()
         result = self._server.handle_completions(request)
         latency = time.perf_counter() - start
+        self._answered = True
         if "error" in result:
             raise LLMError(f"embedded model failed: {result['error']}")
         usage, timings = result.get("usage", {}), result.get("timings", {})
@@ -163,6 +165,13 @@ class EmbeddedModel:
                      cached_tokens=int(timings.get("cache_n", 0) or 0), latency_s=latency)
 
     def close(self) -> None:
+        """Stop llama.cpp. A server that never answered is first asked for one token: its loop may not
+        have started yet, and xllamacpp's stop signal sent before that is lost, leaving the join in
+        `Server.__del__` waiting forever (seen under load, right after construction)."""
+        if self._server is None:
+            return
+        if not self._answered:
+            self._server.handle_completions({"prompt": "a", "max_tokens": 1, "cache_prompt": False})
         self._server = None
 
 

@@ -271,14 +271,22 @@ def trajectory_figure(frame: pd.DataFrame, path: Path) -> Path | None:
     return path
 
 
-def _title_command_paper(name: str, frame: pd.DataFrame) -> tuple[str, list[str], dict]:
+def _title_command_paper(name: str, frame: pd.DataFrame) -> tuple[str, list[str], dict, str]:
+    """The experiment's title, the commands that filled the store, its paper figures, and a warning
+    when the store holds fewer trials than the shipped experiment's grid (a partial sweep)."""
+    partial = ""
     try:
         experiment = load_experiment(name)
         title, paper = experiment.title, experiment.paper
+        expected = {t.id for t in experiment.trials()}
+        stored = expected & set(frame["trial_id"].astype(str))
+        if len(stored) < len(expected):
+            partial = (f"**Partial store**: {len(stored)} of the grid's {len(expected)} trials; cells with fewer "
+                       "trials than seeds, or missing from the table, are not finished (`bench sweep` resumes).")
     except ExperimentError:
         title, paper = name, {}
     commands = [c for c in frame.get("sweep_command", pd.Series(dtype=str)).dropna().unique()]
-    return title, commands, paper
+    return title, commands, paper, partial
 
 
 class ReportConflict(ValueError):
@@ -316,7 +324,7 @@ def write_reports(frame: pd.DataFrame, out: Path, fmt: str = "md", force: bool =
         group = group.sort_values(["cell_index", "seed"]).reset_index(drop=True)
         table, engines = summary_table(group), engine_table(group)
         numbers = summary_table(group, spread=False)
-        title, commands, paper = _title_command_paper(str(name), group)
+        title, commands, paper, partial = _title_command_paper(str(name), group)
         published = paper_table(group, paper) if paper else None
         bars = bar_figure(group, numbers, out / "figures" / f"{name}_bars.png", title, paper)
         traj = trajectory_figure(group, out / "figures" / f"{name}_trajectories.png")
@@ -335,7 +343,7 @@ def write_reports(frame: pd.DataFrame, out: Path, fmt: str = "md", force: bool =
             path.write_text("\n".join(parts) + "\n")
         else:
             path.write_text(_markdown_report(str(name), title, commands, group, table, engines, figures,
-                                             published, paper.get("source", "")))
+                                             published, paper.get("source", ""), partial))
         written += [path, *figures]
     return written
 
@@ -350,7 +358,7 @@ def _walking_text(group: pd.DataFrame) -> str:
 
 def _markdown_report(name: str, title: str, commands: list[str], group: pd.DataFrame, table: pd.DataFrame,
                      engines: pd.DataFrame | None, figures: list[Path], published: pd.DataFrame | None = None,
-                     source: str = "") -> str:
+                     source: str = "", partial: str = "") -> str:
     versions = json.loads(group["versions"].dropna().iloc[0]) if "versions" in group and group["versions"].notna().any() else {}
     commits = sorted(str(c)[:10] for c in group.get("git_commit", pd.Series(dtype=str)).dropna().unique())
     lines = [f"# {title}", "",
@@ -365,6 +373,8 @@ def _markdown_report(name: str, title: str, commands: list[str], group: pd.DataF
         lines += ["", "**Approximation**: LLM cells with history mode `shifted` ran on llama.cpp's KV-cache shifting "
                       "(cached keys and values keep the dropped pair in context); `bench latency` measures how often "
                       "a reply differs from an exact recompute."]
+    if partial:
+        lines += ["", partial]
     if commands:
         lines += ["", "Made with:", "", *[f"    {c}" for c in commands]]
     lines += ["", to_markdown(table)]

@@ -236,6 +236,9 @@ def test_the_papers_figures_stand_beside_the_stores_in_table_and_figure(tmp_path
     write_reports(committed, tmp_path / "reports", fmt="md")
     text = (tmp_path / "reports" / "history.md").read_text()
     assert "Beside the paper (Wang et al. 2023, GPT-4" in text and "| 50 | 7298 |" in text
+    assert "Partial store" not in text  # all 105 trials of the grid
+    write_reports(committed.iloc[:-7], tmp_path / "partial", fmt="md")
+    assert "**Partial store**: 98 of the grid's 105 trials" in (tmp_path / "partial" / "history.md").read_text()
 
 
 def test_repeated_targets_tell_a_frozen_reply_from_a_gait():

@@ -51,3 +51,31 @@ def test_ngram_drafting_is_measured_against_decoding_without_it():
     drafted, plain = measure("embedded", [5], ["shifted"], queries=3, threads=2, drift=False, drafts=("ngram", "none"))
     assert (drafted["draft"], plain["draft"]) == ("ngram", "none") and "same_as_no_draft" not in plain
     assert drafted["same_as_no_draft"] >= 2 / 3  # greedy drafting keeps the reply (batch effects aside)
+
+
+def test_a_trial_answers_the_same_after_another_trial_as_alone():
+    """A sweep worker keeps one model for many trials; each trial's first query reuses nothing cached, so
+    the previous trial's keys and values cannot flip its replies. (Without that, this trial reused the
+    previous one's 457-token description and its first reply differed.)"""
+    import dataclasses
+
+    from benchmark.cell import KeepPolicy, run_cell
+
+    cell = make_cell({"policy": "llm", "history": 10, "llm_after": 2.0, "duration": 2.3})  # shifted, 3 queries
+    one_query = dataclasses.replace(cell, duration=2.1)
+    runtime = Runtime(threads=2, cache=False)
+
+    def replies(before: bool) -> list:
+        resources, watch = Resources(runtime), KeepPolicy()
+        try:
+            if before:
+                run_cell(one_query, [0], resources)
+            run_cell(cell, [1], resources, hooks=[watch])
+            return [q.reply for q in watch.policy.queries]
+        finally:
+            resources.close()
+
+    after_another, alone = replies(before=True), replies(before=False)
+    assert len(alone) == 3 and [r.text for r in after_another] == [r.text for r in alone]
+    assert after_another[0].cached_tokens == 0  # nothing of trial 0 was reused
+    assert after_another[1].cached_tokens > 0  # within a trial the cache still works

@@ -142,6 +142,8 @@ def test_cached_tokens_come_from_llamacpps_own_figures(embedded):
     model.complete(DESCRIBED, Sampling(), ALL)
     again = model.complete(DESCRIBED + " [100, 100, 100]\nInput: [1, 2, 3]\nOutput:", Sampling(), ALL)
     assert again.cached_tokens > 40 and again.cached_tokens < again.prompt_tokens
+    cold = model.complete(DESCRIBED + " [100, 100, 100]\nInput: [1, 2, 3]\nOutput:", Sampling(), ALL, cold=True)
+    assert cold.cached_tokens == 0 and cold.prompt_tokens == again.prompt_tokens
 
 
 def test_429_with_retry_after_waits_and_latency_excludes_the_wait(embedded):
@@ -210,6 +212,8 @@ def test_each_server_kind_gets_its_own_documented_constraint(kind, layout, field
         others = {"structured_outputs", "regex", "grammar", "response_format"} - {field}
         assert not others & set(server.bodies[-1])
         assert reply.cached_tokens == 32 and reply.prompt_tokens == 40
+        model.complete(DESCRIBED, Sampling(), ALL, cold=True)  # a trial's first query: only llama.cpp has a switch
+        assert server.bodies[-1].get("cache_prompt", True) is (kind != "llamacpp")
     finally:
         server.close()
 

@@ -37,9 +37,8 @@ MODES = ("sliding", "block", "shifted")
 def _drift(policy) -> dict:
     """Replies against a cold recompute of the same prompts, on the same model."""
     model, identical, diffs = policy.model, 0, []
-    cold = getattr(model, "complete")
     for q in policy.queries:
-        again = cold(q.prompt, policy.settings.sampling, policy.constraint, cold=True)
+        again = model.complete(q.prompt, policy.settings.sampling, policy.constraint, cold=True)
         identical += again.text == q.reply.text
         a = parse_reply(q.reply.text, policy.encoding, policy.robot.num_joints)
         b = parse_reply(again.text, policy.encoding, policy.robot.num_joints)

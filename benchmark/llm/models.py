@@ -77,7 +77,10 @@ class Reply:
 class LanguageModel(Protocol):
     id: str  # identifies the model and its weights for caching
 
-    def complete(self, prompt: str, sampling: Sampling, constraint: Constraint) -> Reply: ...
+    def complete(self, prompt: str, sampling: Sampling, constraint: Constraint, cold: bool = False) -> Reply:
+        """The reply to `prompt`. `cold` asks the server to reuse nothing it cached from earlier prompts, so
+        the reply depends on this prompt alone (each trial's first query: trials do not depend on their order)."""
+        ...
 
     def close(self) -> None: ...
 
@@ -245,12 +248,14 @@ class OpenAIModel:
     def __repr__(self) -> str:  # never show the key
         return f"OpenAIModel(model={self.model!r}, url={self.url!r}, layout={self.layout!r}, server={self.server!r})"
 
-    def complete(self, prompt: str, sampling: Sampling, constraint: Constraint) -> Reply:
+    def complete(self, prompt: str, sampling: Sampling, constraint: Constraint, cold: bool = False) -> Reply:
         import openai
 
         body = {"model": self.model, "temperature": sampling.temperature, "max_tokens": sampling.max_tokens,
                 "seed": sampling.seed}
         extra = constraint_fields(self.server, self.layout, constraint)
+        if cold and self.server == "llamacpp":  # llama.cpp's own switch; other stacks offer none per request
+            extra["cache_prompt"] = False
         self._respect_rate_limit()
         try:
             if self.layout == "chat":
@@ -320,11 +325,11 @@ class CachedModel:
         digest = hashlib.sha256(key.encode()).hexdigest()
         return self.directory / digest[:2] / f"{digest}.json"
 
-    def complete(self, prompt: str, sampling: Sampling, constraint: Constraint) -> Reply:
+    def complete(self, prompt: str, sampling: Sampling, constraint: Constraint, cold: bool = False) -> Reply:
         path = self._path(prompt, sampling, constraint)
         if path.is_file():
             return Reply(**{**json.loads(path.read_text()), "cached": True})
-        reply = self.inner.complete(prompt, sampling, constraint)
+        reply = self.inner.complete(prompt, sampling, constraint, cold=cold)
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(".tmp")
         tmp.write_text(json.dumps(asdict(reply)))

@@ -44,7 +44,7 @@ class _TextModel:
     def reply_to(self, prompt: str) -> str:
         raise NotImplementedError
 
-    def complete(self, prompt: str, sampling: Sampling, constraint: Constraint) -> Reply:
+    def complete(self, prompt: str, sampling: Sampling, constraint: Constraint, cold: bool = False) -> Reply:
         start = time.perf_counter()
         text = " " + self.reply_to(prompt)
         return Reply(text, gpt4_tokens(prompt), gpt4_tokens(text), time.perf_counter() - start)

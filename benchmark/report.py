@@ -16,6 +16,7 @@ from __future__ import annotations
 import hashlib
 import json
 import re
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -84,6 +85,11 @@ def _with_spread(values: pd.Series, key: str, digits: int) -> str:
     return f"{mean:.{digits}f} ± {values.std(ddof=1) if len(values) > 1 else 0.0:.{digits}f}"
 
 
+def step_times(row: pd.Series, steps: int) -> np.ndarray:
+    """The times of a stored trajectory's steps: each is the state after its control step."""
+    return np.arange(1, steps + 1) * float(row["control_dt"])
+
+
 def repeated_targets(row: pd.Series) -> float:
     """For an LLM trial, the fraction of its evaluated control steps whose joint targets equal the
     previous step's: 1.0 for a model stuck on one reply (as `hold` is by design), near 0 for a gait.
@@ -92,8 +98,7 @@ def repeated_targets(row: pd.Series) -> float:
     if row.get("policy") != "llm" or not isinstance(row.get("traj_joint_target"), (list, np.ndarray)):
         return float("nan")
     targets = np.array([np.asarray(step, dtype=float) for step in row["traj_joint_target"]])
-    times = np.arange(1, len(targets) + 1) * float(row["control_dt"])
-    phase = targets[times > float(row["eval_start"]) + 1e-9]
+    phase = targets[step_times(row, len(targets)) > float(row["eval_start"]) + 1e-9]
     if len(phase) < 2:
         return float("nan")
     return float(np.all(np.diff(phase, axis=0) == 0.0, axis=1).mean())
@@ -251,7 +256,7 @@ def trajectory_figure(frame: pd.DataFrame, path: Path) -> Path | None:
     fig, panels = plt.subplots(len(joints), 1, figsize=(8, 6), sharex=True, constrained_layout=True)
     for _, row in chosen.iterrows():
         q = np.array([np.asarray(step) for step in row["traj_joint_pos"]])
-        t = np.arange(1, len(q) + 1) * row["control_dt"]
+        t = step_times(row, len(q))
         label = " ".join(str(row[a]) for a in axes if str(row[a]) not in ("None", "nan"))
         for panel, j in zip(panels, joints):
             panel.plot(t, q[:, j], lw=1.2, label=label)
@@ -271,22 +276,30 @@ def trajectory_figure(frame: pd.DataFrame, path: Path) -> Path | None:
     return path
 
 
-def _title_command_paper(name: str, frame: pd.DataFrame) -> tuple[str, list[str], dict, str]:
-    """The experiment's title, the commands that filled the store, its paper figures, and a warning
-    when the store holds fewer trials than the shipped experiment's grid (a partial sweep)."""
-    partial = ""
+@dataclass(frozen=True)
+class StoreContext:
+    """What a report says around its table: the experiment's title, the commands that filled the store,
+    the paper's figures, and a warning when the store holds fewer trials than the shipped grid."""
+
+    title: str
+    commands: list[str]
+    paper: dict
+    partial: str = ""
+
+
+def store_context(name: str, frame: pd.DataFrame) -> StoreContext:
+    """The context of experiment `name`'s rows in `frame` (an unknown experiment: its name, no figures)."""
+    commands = [c for c in frame.get("sweep_command", pd.Series(dtype=str)).dropna().unique()]
     try:
         experiment = load_experiment(name)
-        title, paper = experiment.title, experiment.paper
-        expected = {t.id for t in experiment.trials()}
-        stored = expected & set(frame["trial_id"].astype(str))
-        if len(stored) < len(expected):
-            partial = (f"**Partial store**: {len(stored)} of the grid's {len(expected)} trials; cells with fewer "
-                       "trials than seeds, or missing from the table, are not finished (`bench sweep` resumes).")
     except ExperimentError:
-        title, paper = name, {}
-    commands = [c for c in frame.get("sweep_command", pd.Series(dtype=str)).dropna().unique()]
-    return title, commands, paper, partial
+        return StoreContext(name, commands, {})
+    expected = {t.id for t in experiment.trials()}
+    stored = expected & set(frame["trial_id"].astype(str))
+    partial = "" if len(stored) == len(expected) else (
+        f"**Partial store**: {len(stored)} of the grid's {len(expected)} trials; cells with fewer "
+        "trials than seeds, or missing from the table, are not finished (`bench sweep` resumes).")
+    return StoreContext(experiment.title, commands, experiment.paper, partial)
 
 
 class ReportConflict(ValueError):
@@ -324,7 +337,8 @@ def write_reports(frame: pd.DataFrame, out: Path, fmt: str = "md", force: bool =
         group = group.sort_values(["cell_index", "seed"]).reset_index(drop=True)
         table, engines = summary_table(group), engine_table(group)
         numbers = summary_table(group, spread=False)
-        title, commands, paper, partial = _title_command_paper(str(name), group)
+        context = store_context(str(name), group)
+        title, paper = context.title, context.paper
         published = paper_table(group, paper) if paper else None
         bars = bar_figure(group, numbers, out / "figures" / f"{name}_bars.png", title, paper)
         traj = trajectory_figure(group, out / "figures" / f"{name}_trajectories.png")
@@ -342,8 +356,7 @@ def write_reports(frame: pd.DataFrame, out: Path, fmt: str = "md", force: bool =
             parts += [f'<img src="figures/{p.name}" alt="{p.stem}">' for p in figures]
             path.write_text("\n".join(parts) + "\n")
         else:
-            path.write_text(_markdown_report(str(name), title, commands, group, table, engines, figures,
-                                             published, paper.get("source", ""), partial))
+            path.write_text(_markdown_report(str(name), context, group, table, engines, figures, published))
         written += [path, *figures]
     return written
 
@@ -356,12 +369,11 @@ def _walking_text(group: pd.DataFrame) -> str:
             f"{row['walk_min_speed']:g} m/s; success distance at least {row['walk_min_distance_m']:g} m")
 
 
-def _markdown_report(name: str, title: str, commands: list[str], group: pd.DataFrame, table: pd.DataFrame,
-                     engines: pd.DataFrame | None, figures: list[Path], published: pd.DataFrame | None = None,
-                     source: str = "", partial: str = "") -> str:
+def _markdown_report(name: str, context: StoreContext, group: pd.DataFrame, table: pd.DataFrame,
+                     engines: pd.DataFrame | None, figures: list[Path], published: pd.DataFrame | None = None) -> str:
     versions = json.loads(group["versions"].dropna().iloc[0]) if "versions" in group and group["versions"].notna().any() else {}
     commits = sorted(str(c)[:10] for c in group.get("git_commit", pd.Series(dtype=str)).dropna().unique())
-    lines = [f"# {title}", "",
+    lines = [f"# {context.title}", "",
              f"Experiment `{name}`: {len(group)} trials in {group['cell_id'].nunique()} cells, "
              f"seeds {sorted(group['seed'].unique().tolist())}. NWT and success cover the evaluated phase only "
              "(for the LLM, from its takeover to the end) and need walking: NWT is the fraction of the phase "
@@ -373,15 +385,15 @@ def _markdown_report(name: str, title: str, commands: list[str], group: pd.DataF
         lines += ["", "**Approximation**: LLM cells with history mode `shifted` ran on llama.cpp's KV-cache shifting "
                       "(cached keys and values keep the dropped pair in context); `bench latency` measures how often "
                       "a reply differs from an exact recompute."]
-    if partial:
-        lines += ["", partial]
-    if commands:
-        lines += ["", "Made with:", "", *[f"    {c}" for c in commands]]
+    if context.partial:
+        lines += ["", context.partial]
+    if context.commands:
+        lines += ["", "Made with:", "", *[f"    {c}" for c in context.commands]]
     lines += ["", to_markdown(table)]
     if engines is not None:
         lines += ["", "Engines side by side (success rate / NWT):", "", to_markdown(engines)]
     if published is not None:
-        lines += ["", f"Beside the paper ({source}; its figures as published, ours from this store; GPT-4 token "
+        lines += ["", f"Beside the paper ({context.paper.get('source', '')}; its figures as published, ours from this store; GPT-4 token "
                       "counts are cl100k on this store's prompts):", "", to_markdown(published)]
     lines += ["", *[f"![{p.stem}](figures/{p.name})" for p in figures], ""]
     if versions or commits:

@@ -55,6 +55,9 @@ def test_shipped_experiments_expand_into_the_papers_grids():
     assert {t.cell.eval_start for t in norm} == {10.0}
     description = [t for t in load_experiment("description").trials() if t.labels["controller"] == "embedded"]
     assert [len(t.cell.settings.prompt_parts) for t in description[::5]] == [1, 2, 3, 4, 5]
+    # the seed policy uses no description part: its one cell is labelled "-" in reports, not "E1"
+    seed = [t for t in load_experiment("description").trials() if t.labels["controller"] == "seed_policy"]
+    assert len({t.cell for t in seed}) == 1 and {t.labels["description"] for t in seed} == {None}
     history = load_experiment("history").trials()
     assert sorted({t.cell.settings.history for t in history if t.cell.policy == "llm"}) == [0, 10, 30, 50]
     cross = load_experiment("cross_engine")

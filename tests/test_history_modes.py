@@ -33,10 +33,11 @@ def test_each_mode_gets_the_llamacpp_settings_it_needs(mode, reuse):
         resources.close()
 
 
-def test_the_drift_report_compares_every_reply_with_a_cold_recompute():
+def test_the_drift_report_compares_every_reply_with_a_cold_recompute(capsys):
     from benchmark.llm.latency import measure
 
     rows = measure("embedded", [5], ["sliding", "shifted"], queries=3, threads=2)
+    assert "bench: latency cell 2/2 (history 5, shifted, draft ngram)" in capsys.readouterr().err  # not a terminal
     sliding, shifted = rows
     assert (sliding["mode"], shifted["mode"]) == ("sliding", "shifted") and shifted["approximate"]
     for row in rows:

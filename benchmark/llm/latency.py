@@ -23,6 +23,7 @@ decoded actions. For `shifted`, `outcome_changed` says whether the trial ended d
 from __future__ import annotations
 
 import sys
+import time
 
 import numpy as np
 from tqdm import tqdm
@@ -54,9 +55,10 @@ def measure(model_spec: str, histories: list[int], modes: list[str], queries: in
     history. Every cell loads its own model, so none starts from what another cell (or a cold recompute) left
     in llama.cpp's cache: a shifted cell that followed another's cold recomputes measured 27 s instead of 2 s.
     With both drafts, `same_as_no_draft` is the fraction of replies equal to the undrafted cell's, query by query."""
-    rows, replies = [], {}
+    rows, replies, started = [], {}, time.perf_counter()
     cells = [(h, m, d) for h in histories for m in modes for d in drafts]
-    for history, mode, draft in tqdm(cells, desc="latency cells", file=sys.stderr, disable=None):
+    bar = tqdm(cells, desc="latency cells", file=sys.stderr, disable=None)
+    for history, mode, draft in bar:
         resources = Resources(Runtime(threads=threads, cache=False, draft=draft))
         try:
             takeover = round(LLMSettings().seed_start + CONTROL_DT * history, 1)
@@ -78,6 +80,10 @@ def measure(model_spec: str, histories: list[int], modes: list[str], queries: in
             if drift and hasattr(policy.model, "cache_reuse"):
                 row.update(_drift(policy))
             rows.append(row)
+            if bar.disable:  # not a terminal (nohup, CI, a pipe): a line per cell instead of nothing
+                print(f"bench: latency cell {len(rows)}/{len(cells)} (history {history}, {mode}, draft {draft}): "
+                      f"{row['latency_mean_s']:.2f} s a query, {time.perf_counter() - started:.0f} s so far",
+                      file=sys.stderr, flush=True)
         finally:
             resources.close()
     for row in rows:

@@ -97,10 +97,13 @@ class Experiment:
             settings.update(overrides or {})
             cell = make_cell(settings, where=self.name, strict=False)
             params = cell.params()
-            # a setting the policy ignores reads None (the seed policy has no encoding), and so does a
-            # variant none of whose settings it uses (the seed policy has no description parts)
-            labels = {axis: (variants[axis] if any(params.get(k) is not None for k in self.variants[axis][variants[axis]])
-                             else None) if axis in variants else params.get(axis) for axis in self.grid}
+            labels = {}
+            for axis in self.grid:
+                if axis in variants:  # None where the policy uses none of its settings (seed policy: no description)
+                    used = any(params.get(key) is not None for key in self.variants[axis][variants[axis]])
+                    labels[axis] = variants[axis] if used else None
+                else:  # a setting the policy ignores reads None (the seed policy has no encoding)
+                    labels[axis] = params.get(axis)
             index = cells.setdefault(cell, len(cells))  # counted over the whole grid, so slices agree
             if only and any(str({**params, **labels}.get(k)) != v for k, v in only.items()):
                 continue

@@ -192,8 +192,8 @@ class LLMPolicy:
         self.last_prompt = prompt
         if getattr(self.model, "privileged", False):  # the oracle reference model: the seed policy's answer
             self.model.set_reference(self.seed_action, self.encoding)
-        # a trial's first query reuses nothing cached: in a sweep worker the previous trial's keys and values
-        # (computed in other batch splits, and shifted) flipped greedy near-ties, so results hung on trial order
+        # a trial's first query reuses nothing cached: a trial that followed another in one process could reuse
+        # its cached prefix, computed in one batch with another prompt, and a greedy near-tie then flipped
         reply = self.model.complete(prompt, self.settings.sampling, self.constraint, cold=not t.queries)
         action = parse_reply(reply.text, self.encoding, self.robot.num_joints)
         if getattr(self.model, "obeys_constraint", True) and self.constraint.violated_by(reply.text):

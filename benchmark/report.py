@@ -56,8 +56,10 @@ def axes_of(frame: pd.DataFrame) -> list[str]:
 
 
 def _with_axis_text(frame: pd.DataFrame, axes: list[str]) -> pd.DataFrame:
-    """Axis values as text, "-" where the cell's policy does not use the setting (groupby drops NaN keys)."""
-    return frame.assign(**{a: frame[a].map(lambda v: "-" if pd.isna(v) else str(v)) for a in axes})
+    """Axis values as text, "-" where the cell's policy does not use the setting (groupby drops NaN keys);
+    numbers as written (a column with gaps holds history 10 as 10.0)."""
+    return frame.assign(**{a: frame[a].map(lambda v: "-" if pd.isna(v) else f"{v:g}" if isinstance(v, float) else str(v))
+                           for a in axes})
 
 
 INTERVALS = ("success",)  # rates shown with a Wilson 95% interval; other means with +- one std

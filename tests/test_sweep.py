@@ -251,3 +251,10 @@ def test_repeated_targets_tell_a_frozen_reply_from_a_gait():
     assert repeated_targets(pd.Series({**row, "traj_joint_target": still})) == 1.0
     assert repeated_targets(pd.Series({**row, "traj_joint_target": moving})) == 0.0
     assert np.isnan(repeated_targets(pd.Series({**row, "policy": "rl", "traj_joint_target": still})))
+
+
+def test_axis_values_read_as_written_in_tables():
+    # the seed policy's row has no history, so the stored column is float: history 10 must still read "10"
+    store = pd.read_parquet(Path(__file__).parents[1] / "reports" / "data" / "history.parquet")
+    table = summary_table(store, spread=False)
+    assert set(table["history"]) == {"-", "0", "10", "30", "50"}

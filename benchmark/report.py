@@ -55,11 +55,17 @@ def axes_of(frame: pd.DataFrame) -> list[str]:
     return axes
 
 
+def axis_text(value) -> str:
+    """An axis value as tables, figures and the `[paper]` table write it: "-" where the cell's policy does
+    not use the setting, numbers as written (a column with gaps holds history 10 as 10.0)."""
+    if pd.isna(value):
+        return "-"
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
 def _with_axis_text(frame: pd.DataFrame, axes: list[str]) -> pd.DataFrame:
-    """Axis values as text, "-" where the cell's policy does not use the setting (groupby drops NaN keys);
-    numbers as written (a column with gaps holds history 10 as 10.0)."""
-    return frame.assign(**{a: frame[a].map(lambda v: "-" if pd.isna(v) else f"{v:g}" if isinstance(v, float) else str(v))
-                           for a in axes})
+    """Axis values as text (groupby drops NaN keys, so "-" keeps the cells that ignore a setting)."""
+    return frame.assign(**{a: frame[a].map(axis_text) for a in axes})
 
 
 INTERVALS = ("success",)  # rates shown with a Wilson 95% interval; other means with +- one std
@@ -152,15 +158,6 @@ def to_markdown(table: pd.DataFrame) -> str:
     return "\n".join([head, rule, *rows])
 
 
-def paper_key(value) -> str:
-    """An axis value as the `[paper]` table keys it: 50.0 and 50 are both "50"."""
-    try:
-        number = float(value)
-    except (TypeError, ValueError):
-        return str(value)
-    return f"{number:g}"
-
-
 def paper_table(frame: pd.DataFrame, paper: dict) -> pd.DataFrame | None:
     """The paper's figures per value of its axis, beside this store's: success / NWT of each LLM
     controller, and the GPT-4 token counts of this store's prompts (cl100k)."""
@@ -173,7 +170,7 @@ def paper_table(frame: pd.DataFrame, paper: dict) -> pd.DataFrame | None:
     who = "controller" if "controller" in llm and llm["controller"].notna().any() else "model"
     rows = []
     for value in dict.fromkeys(llm[axis].dropna()):
-        key, cell = paper_key(value), llm[llm[axis] == value]
+        key, cell = axis_text(value), llm[llm[axis] == value]
         row = {axis: key, **{f"paper {names[m]}": paper[m].get(key, np.nan) for m in names if m in paper}}
         for name, trials in cell.groupby(who, sort=False):
             row[f"{name}: success / NWT"] = f"{trials['success'].mean():.2f} / {trials['nwt'].mean():.3f}"
@@ -214,7 +211,7 @@ def bar_figure(frame: pd.DataFrame, table: pd.DataFrame, path: Path, title: str,
             panel.axhline(float(row[metric]), color="k", ls="--", lw=1, label=f"{row[hue]} (all cells)")
         published = (paper or {}).get({"NWT": "nwt", "success rate": "success"}[metric], {})
         if published and groups == [paper.get("axis")]:
-            marks = [(i, published[paper_key(label)]) for i, label in enumerate(x_labels) if paper_key(label) in published]
+            marks = [(i, published[label]) for i, label in enumerate(x_labels) if label in published]  # labels: axis_text
             if marks:
                 panel.plot(*zip(*marks), "kx", ms=9, mew=2, label=paper.get("source", "paper"))
         panel.set_xticks(range(len(x_labels)), x_labels, fontsize=8)

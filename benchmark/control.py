@@ -36,6 +36,9 @@ class HeadingHold:
     max_line_heading: float = 0.4  # rad
 
 
+FIXED_COMMAND = HeadingHold(gain=0.0, follow_line=False)  # the paper's protocol: the command never changes
+
+
 def yaw_of(quat_wxyz: np.ndarray) -> float:
     w, x, y, z = quat_wxyz
     return math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import gymnasium as gym
 import numpy as np
 
-from benchmark.control import ControlLoop, HeadingHold
+from benchmark.control import FIXED_COMMAND, ControlLoop, HeadingHold
 from benchmark.observation import RL_OBS_DIM
 from benchmark.rewards import FeetAirTime, RewardWeights, walking_reward
 from robots import available_robots, load_robot
@@ -41,6 +41,8 @@ class Randomization:
     obs_noise: float = 1.0  # factor on the per-quantity noise amplitudes below
     heading: float = 0.5  # rad: target headings are drawn from [-heading, heading], so the policy
     #                       learns to follow the yaw-rate command that holds a heading
+    straight_share: float = 0.5  # of episodes under the paper's fixed command (no heading hold): yaw rate
+    #                              tracked at 0, the start heading held without being observed
 
 
 def observation_noise_amplitudes(scales) -> np.ndarray:
@@ -62,7 +64,8 @@ class LocomotionEnv(gym.Env):
         self.robot = load_robot(robot)
         self.terrain = Terrain(terrain, seed=terrain_seed)
         self.sim = make_sim(sim, self.robot, self.terrain)
-        self.loop = ControlLoop(self.sim, self.robot, self.terrain, heading=HeadingHold(follow_line=randomization is None))
+        self._hold = HeadingHold(follow_line=randomization is None)
+        self.loop = ControlLoop(self.sim, self.robot, self.terrain, heading=self._hold)
         self.randomization, self.rewards = randomization, rewards
         self.max_steps = int(round(episode_s / self.loop.dt))
         self.action_space = gym.spaces.Box(-ACTION_LIMIT, ACTION_LIMIT, (self.robot.num_joints,), np.float32)
@@ -84,7 +87,9 @@ class LocomotionEnv(gym.Env):
             u = self.np_random.uniform
             self.sim.set_dynamics(Dynamics(friction=u(*r.friction), base_mass_scale=u(*r.base_mass_scale),
                                            motor_strength=u(*r.motor_strength)))
-        target = self.np_random.uniform(-r.heading, r.heading) if r is not None else 0.0
+        straight = r is not None and self.np_random.uniform() < r.straight_share
+        self.loop.heading = FIXED_COMMAND if straight else self._hold
+        target = self.np_random.uniform(-r.heading, r.heading) if r is not None and not straight else 0.0
         self.loop.reset(int(self.np_random.integers(2**31)), target_heading=target)
         self._air.reset()
         return self._observe(), {}

@@ -60,6 +60,8 @@ class TrainConfig:
     init_from: str | None = setting(None, "warm start the actor from a policy.npz (fine-tuning)")
     rough_share: float = setting(0.5, "fraction of the 8 environments on rough terrain", minimum=0)
     eval_terrain: str = setting("flat", "terrain of the periodic evaluation trial", choices=("flat", "rough"))
+    mirror: bool = setting(True, "mirrored-state augmentation: every transition is also learnt reflected left/right, "
+                                 "so the policy has no turning bias (--no-mirror: as the earlier policies)")
     rewards: RewardWeights = RewardWeights()
     ppo: PPOSettings = PPOSettings()
     num_envs: int = 8
@@ -109,6 +111,50 @@ def load_actor_into(model, actor: MlpActor) -> None:
             layer.bias.copy_(torch.as_tensor(b))
 
 
+def mirrored_rollout(buffer, policy):
+    """The rollout with every environment's transitions also reflected left/right, as extra environments.
+
+    A mirrored transition keeps its reward, value, return and advantage (the task is symmetric);
+    its old log-probability is the current policy's, on the mirrored observation and action,
+    computed before the update, as PPO's ratio needs."""
+    import torch
+    from stable_baselines3.common.buffers import RolloutBuffer
+
+    from benchmark.symmetry import mirror_joints, mirror_rl_observation
+
+    steps, envs = buffer.buffer_size, buffer.n_envs
+    out = RolloutBuffer(steps, buffer.observation_space, buffer.action_space, device=buffer.device,
+                        gae_lambda=buffer.gae_lambda, gamma=buffer.gamma, n_envs=2 * envs)
+    observations = mirror_rl_observation(buffer.observations).astype(np.float32)
+    actions = mirror_joints(buffer.actions).astype(np.float32)
+    with torch.no_grad():
+        _, log_probs, _ = policy.evaluate_actions(torch.as_tensor(observations.reshape(steps * envs, -1)),
+                                                  torch.as_tensor(actions.reshape(steps * envs, -1)))
+    out.observations = np.concatenate([buffer.observations, observations], axis=1)
+    out.actions = np.concatenate([buffer.actions, actions], axis=1)
+    out.log_probs = np.concatenate([buffer.log_probs, log_probs.numpy().reshape(steps, envs)], axis=1)
+    for name in ("rewards", "returns", "episode_starts", "values", "advantages"):
+        setattr(out, name, np.concatenate([getattr(buffer, name)] * 2, axis=1))
+    out.full, out.pos = True, steps
+    return out
+
+
+def symmetric_ppo():
+    """stable-baselines3's PPO, updating on each rollout and its mirror image (`mirrored_rollout`)."""
+    from stable_baselines3 import PPO
+
+    class SymmetricPPO(PPO):
+        def train(self) -> None:
+            rollout = self.rollout_buffer
+            self.rollout_buffer = mirrored_rollout(rollout, self.policy)
+            try:
+                super().train()
+            finally:
+                self.rollout_buffer = rollout
+
+    return SymmetricPPO
+
+
 def train(config: TrainConfig, stop: Callable[[], bool] = lambda: False, command: str = "bench train") -> Path:
     """Train, evaluating every `eval_every` steps and once at the end; returns the policy.npz path.
     Training ends early (saved and evaluated as usual) once `stop()` is true; `command` is recorded
@@ -140,7 +186,8 @@ def train(config: TrainConfig, stop: Callable[[], bool] = lambda: False, command
     vec.seed(seed)
     log_std = float(np.log(c.exploration_rad / load_robot(robot).action_scale))
     net = list(c.net)
-    model = PPO("MlpPolicy", vec, seed=seed, device="cpu", verbose=0, **asdict(c.ppo),
+    algorithm = symmetric_ppo() if c.mirror else PPO
+    model = algorithm("MlpPolicy", vec, seed=seed, device="cpu", verbose=0, **asdict(c.ppo),
                 policy_kwargs=dict(net_arch=dict(pi=net, vf=net), activation_fn=nn.ELU, log_std_init=log_std))
     if init_from is not None:
         load_actor_into(model, MlpActor.load(init_from))
@@ -155,7 +202,7 @@ def train(config: TrainConfig, stop: Callable[[], bool] = lambda: False, command
                 "wall_s": round(time.perf_counter() - started, 1), "command": command,
                 "versions": {"python": platform.python_version(), "torch": torch.__version__,
                              "stable_baselines3": stable_baselines3.__version__, "gymnasium": gymnasium.__version__,
-                             "mujoco": mujoco.__version__}, "ppo": asdict(c.ppo), "net": net, "rewards": asdict(rewards),
+                             "mujoco": mujoco.__version__}, "ppo": asdict(c.ppo), "mirror": c.mirror, "net": net, "rewards": asdict(rewards),
                 "init_from": None if init_from is None else {"path": str(init_from),
                                                              **MlpActor.load(init_from).meta}}
 

@@ -8,7 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from benchmark.validate import NO_ARMATURE, REFERENCE, ValidateConfig, agreement, validate
+from benchmark.validate import REFERENCE, ValidateConfig, agreement, validate
 from robots import available_robots, load_robot, per_joint
 from sims import available_sims, make_sim
 from sims.base import PhysicsConfig
@@ -98,12 +98,32 @@ def test_engines_follow_the_one_joint_model(validation):
     for engine in ("mujoco", "newton"):
         rise = agreement(validation, engine, REFERENCE)
         assert (rise < 0.15).all(), rise
-    # PyBullet has no armature: its hips and thighs follow the reference without one and rise faster
-    # than MuJoCo's. Its calves do not (README, "Robot models"): A1's rises 35% slower than that
-    # reference, ANYmal's rings at 100 Hz (explicit 200 Hz PD on a 0.016 kg m^2 shank).
-    rise = agreement(validation, "pybullet", NO_ARMATURE)
-    upper = rise[rise.index.get_level_values("joint") != "calf"]
-    assert (upper < 0.15).all(), rise
-    steps = validation[validation.command == "step"].set_index(["robot", "joint", "source"]).rise_ms
-    faster = steps.xs("pybullet", level="source") < steps.xs("mujoco", level="source")
-    assert faster[faster.index.get_level_values("joint") != "calf"].all(), steps
+    # PyBullet emulates the armature with link inertia (sims.pybullet.add_armature). Its hips follow the
+    # reference within 15%; thighs (which also carry the calf's emulated armature) and calves (A1: the
+    # friction motor slows it, ANYmal: explicit PD on a light shank) are slower, measured in
+    # reports/validation.md: held here within 40% so that a regression shows.
+    rise = agreement(validation, "pybullet", REFERENCE)
+    hips = rise[rise.index.get_level_values("joint") == "hip"]
+    assert (hips < 0.15).all(), rise
+    assert (rise < 0.40).all(), rise
+
+
+@pytest.mark.parametrize("robot_name", available_robots())
+def test_pybullet_emulates_the_armature_as_link_inertia(robot_name):
+    """Each joint's child link carries the joint's armature about the joint axis, on top of the URDF's."""
+    import pybullet
+
+    robot = load_robot(robot_name)
+    sim = make_sim("pybullet", robot, Terrain("flat"))
+    bare = pybullet.connect(pybullet.DIRECT)
+    try:
+        body = pybullet.loadURDF(str(robot.urdf), flags=pybullet.URDF_USE_INERTIA_FROM_FILE, physicsClientId=bare)
+        for joint, armature in zip(sim._joints, robot.joint_dynamics.armature):
+            axis = np.array(sim.client.getJointInfo(sim.body, joint)[13])
+            added = np.array(sim.client.getDynamicsInfo(sim.body, joint)[2]) - \
+                np.array(pybullet.getDynamicsInfo(body, joint, physicsClientId=bare)[2])
+            assert added @ np.ones(3) == pytest.approx(armature, rel=1e-6)  # all of it, spread by axis direction
+            assert added @ axis**2 / np.linalg.norm(axis) ** 2 >= 0.8 * armature  # mostly about the joint axis
+    finally:
+        pybullet.disconnect(bare)
+        sim.close()

@@ -42,6 +42,10 @@ class CellSpec:
     policy: str = setting("llm", "controller (default llm: the main job)", choices=available_policies)
     duration: float | None = setting(None, "episode length in s (default: the policy's, 20 for llm, else 10)",
                                      positive=True)
+    heading_hold: bool = setting(False, "steer back to the starting line through the seed policy's yaw-rate command "
+                                        "(which the LLM never sees); off: the paper's protocol, the command fixed at "
+                                        "the robot's (vx 1 m/s) throughout, so every example in a prompt is a "
+                                        "function of what the prompt shows")
     engine: tuple[tuple[str, Any], ...] = ()  # the engine's own options, as (name, value) pairs
     settings: Any = None  # the policy's settings dataclass (None: the policy has none)
 
@@ -242,7 +246,7 @@ def run_cell(cell: CellSpec, seeds: Iterable[int], resources: Resources | None =
         terrain = Terrain(cell.terrain, seed=cell.terrain_seed)
         sim = resources.sim(cell, robot, terrain)
         policy = build_policy(cell, robot, resources)
-        episode = EpisodeConfig(duration=cell.duration, eval_start=cell.eval_start)
+        episode = EpisodeConfig(duration=cell.duration, eval_start=cell.eval_start, heading_hold=cell.heading_hold)
         results = []
         try:
             for seed in seeds:

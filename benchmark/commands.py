@@ -11,6 +11,7 @@ from tqdm import tqdm
 
 from benchmark.cell import CellSpec, Resources, Runtime, TrialHooks, make_cell, run_cell
 from benchmark.interrupt import Interrupted, Interruption
+from benchmark.llm.progress import RecentRate
 from benchmark.llm.controller import takeover_prompt
 from benchmark.runner import TrialResult, summarize
 from benchmark.settings import SettingError, build
@@ -48,7 +49,7 @@ class _QueryBar(TrialHooks):
         total = int(round((episode.duration - episode.eval_start) / sim.physics.control_dt))
         bar = self.bar = tqdm(total=total, desc=f"seed {seed}: LLM queries", unit="query", file=sys.stderr,
                               disable=None, leave=False)
-        started, last_line = time.monotonic(), [time.monotonic()]
+        last_line, recent = [time.monotonic()], RecentRate()
 
         def update(loop) -> None:
             done = len(policy.queries)
@@ -58,11 +59,13 @@ class _QueryBar(TrialHooks):
             bar.set_postfix_str(f"{latency:.2f} s/query", refresh=False)
             bar.update(done - bar.n)
             now = time.monotonic()
+            recent.add(done, now)
             if bar.disable and (now - last_line[0] >= self.every_s or done == total):
                 last_line[0] = now
-                rate = (now - started) / done
-                print(f"bench: seed {seed}: {done}/{total} LLM queries, last {latency:.2f} s, "
-                      f"ETA {rate * (total - done):.0f} s for this trial", file=sys.stderr, flush=True)
+                eta = recent.eta(total - done)
+                print(f"bench: seed {seed}: {done}/{total} LLM queries, last {latency:.2f} s, ETA "
+                      + (f"{eta:.0f} s for this trial (recent rate)" if eta is not None else "after the next query"),
+                      file=sys.stderr, flush=True)
 
         return update
 
@@ -322,14 +325,18 @@ def cmd_view(args) -> int:
 
 def _run_child(command: list[str]) -> int:
     """Run the viewer in a process group of its own (rerun-sdk's `rerun` is a wrapper that starts the real
-    binary); Ctrl-C or SIGTERM ends the whole group, so no viewer outlives `bench view`."""
+    binary); Ctrl-C, SIGTERM or SIGHUP (a closed terminal) ends the whole group, so no viewer outlives
+    `bench view`."""
     import os
     import signal
+
+    from benchmark.interrupt import TERMINATING
 
     def stop(signum, frame):
         raise KeyboardInterrupt
 
-    signal.signal(signal.SIGTERM, stop)
+    for signum in TERMINATING:
+        signal.signal(signum, stop)
     child = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
     try:
         return child.wait()

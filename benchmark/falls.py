@@ -17,7 +17,7 @@ def fall_reason(state: RobotState, robot: Robot, terrain: Terrain) -> str | None
     """A short reason if `state` is a fall, else None."""
     if not state.is_finite():
         return "simulation diverged: non-finite state"
-    speed = float(np.linalg.norm(state.base_lin_vel))
+    speed = math.hypot(*state.base_lin_vel.tolist())  # not np.linalg.norm: BLAS, CPU-dependent bits
     if speed > DIVERGED_SPEED:
         return f"simulation diverged: base speed {speed:.0f} m/s"
     if state.fall_contact:

@@ -3,7 +3,9 @@
 First Ctrl-C: stop starting new trials, let the trials in flight finish for a short grace
 period, keep everything finished, exit with code 130 saying what was kept. Second Ctrl-C:
 stop at once. Worker processes ignore SIGINT (the driver ends them), so a Ctrl-C to the
-process group or to the driver alone leaves no orphans and no tracebacks.
+process group or to the driver alone leaves no orphans and no tracebacks. SIGTERM (a process
+manager, `kill`) and SIGHUP (a closed terminal, a dropped SSH connection) stop at once, as a
+second Ctrl-C does: workers and servers are ended and what finished is kept.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ import signal
 import sys
 from collections.abc import Callable
 
+TERMINATING = (signal.SIGTERM, signal.SIGHUP)  # signals that end the work at once
 GRACE_S = 5.0  # s that trials in flight get to finish after the first Ctrl-C
 
 
@@ -44,14 +47,23 @@ class Interruption:
             signal.signal(signal.SIGALRM, _raise_interrupt)
             signal.setitimer(signal.ITIMER_REAL, self.grace_s)
 
+    def _terminate(self, signum, frame) -> None:
+        self.requested = True
+        if self.on_second is not None:
+            self.on_second()
+        raise KeyboardInterrupt
+
     def __enter__(self) -> Interruption:
-        self._previous = signal.signal(signal.SIGINT, self._handle)
+        self._previous = {signal.SIGINT: signal.signal(signal.SIGINT, self._handle)}
+        for signum in TERMINATING:
+            self._previous[signum] = signal.signal(signum, self._terminate)
         return self
 
     def __exit__(self, *exc) -> None:
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, signal.SIG_DFL)
-        signal.signal(signal.SIGINT, self._previous)
+        for signum, handler in self._previous.items():
+            signal.signal(signum, handler)
 
 
 def ignore_sigint() -> None:

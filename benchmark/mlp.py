@@ -3,21 +3,44 @@
 The shipped seed policies are the deterministic actors of SB3 PPO policies: hidden layers
 with an activation, then a linear output clipped to the action limit. Storing them as
 arrays keeps checkpoints small (no optimizer state, no pickled classes) and inference fast.
+
+Inference gives the same bits on every CPU. `w @ x` goes through BLAS, whose kernel (and with
+it the order of the sums) depends on the CPU, and numpy's `expm1`/`tanh` use SIMD code chosen by
+CPU too (SVML on AVX-512); on rough ground a last-bit difference grows into metres. So each
+layer multiplies elementwise and sums every row with numpy's pairwise summation (a fixed order
+in float64), and the activations use the C library's scalar functions.
 """
 
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+_expm1 = np.frompyfunc(math.expm1, 1, 1)
+_tanh = np.frompyfunc(math.tanh, 1, 1)
+
+
+def _elu(x: np.ndarray) -> np.ndarray:
+    out = x.copy()
+    negative = x < 0
+    out[negative] = _expm1(x[negative]).astype(np.float64)
+    return out
+
+
 ACTIVATIONS = {
-    "elu": lambda x: np.where(x > 0, x, np.expm1(np.minimum(x, 0.0))),
-    "tanh": np.tanh,
+    "elu": _elu,
+    "tanh": lambda x: _tanh(x).astype(np.float64),
     "relu": lambda x: np.maximum(x, 0.0),
 }
+
+
+def linear(w: np.ndarray, b: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """w @ x + b, summed in a fixed order whatever BLAS or CPU (numpy's pairwise row sums, float64)."""
+    return (w * x).sum(axis=1) + b
 
 
 @dataclass(frozen=True)
@@ -32,8 +55,8 @@ class MlpActor:
         x = np.asarray(obs, dtype=np.float64)
         act = ACTIVATIONS[self.activation]
         for w, b in zip(self.weights[:-1], self.biases[:-1]):
-            x = act(w @ x + b)
-        return np.clip(self.weights[-1] @ x + self.biases[-1], -self.action_limit, self.action_limit)
+            x = act(linear(w, b, x))
+        return np.clip(linear(self.weights[-1], self.biases[-1], x), -self.action_limit, self.action_limit)
 
     def save(self, path: Path) -> None:
         arrays = {f"w{i}": w for i, w in enumerate(self.weights)} | {f"b{i}": b for i, b in enumerate(self.biases)}

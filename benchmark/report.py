@@ -23,6 +23,7 @@ import numpy as np
 import pandas as pd
 
 from benchmark.experiment import ExperimentError, load_experiment
+from benchmark.fingerprint import describe
 
 FORMATS = ("md", "html", "csv")
 METRICS = {  # column in the store -> (heading, aggregation, digits)
@@ -360,6 +361,18 @@ def write_reports(frame: pd.DataFrame, out: Path, fmt: str = "md", force: bool =
     return written
 
 
+def made_on(group: pd.DataFrame) -> str:
+    """The machines a store's trials ran on, by fingerprint (rows from before fingerprints say so)."""
+    if "fingerprint_id" not in group or group["fingerprint_id"].isna().all():
+        return "Made on: not recorded (a store from before platform fingerprints)."
+    rows = group.dropna(subset=["fingerprint_id"]).drop_duplicates("fingerprint_id")
+    counts = group["fingerprint_id"].value_counts()
+    parts = [f"`{r.fingerprint_id}` ({counts[r.fingerprint_id]} trials): {describe(json.loads(r.fingerprint))}"
+             for r in rows.itertuples()]
+    missing = int(group["fingerprint_id"].isna().sum())
+    return "Made on: " + "; ".join(parts) + (f"; {missing} trials not recorded" if missing else "") + "."
+
+
 def _walking_text(group: pd.DataFrame) -> str:
     if "walk_window_s" not in group or group["walk_window_s"].isna().all():
         return "criteria not recorded: a store made before the walking metrics"
@@ -398,6 +411,7 @@ def _markdown_report(name: str, context: StoreContext, group: pd.DataFrame, tabl
     if versions or commits:
         lines += [f"Versions: {', '.join(f'{k} {v}' for k, v in versions.items())}; "
                   f"git commit {', '.join(commits) or 'unknown'}.", ""]
+    lines += [made_on(group), ""]
     lines += [f"Store digest: `{store_digest(group)}` ({len(group)} trials; `bench report` will not replace this "
               "file with a report of another store unless given --force).", ""]
     return "\n".join(lines)

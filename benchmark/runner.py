@@ -20,7 +20,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from benchmark.control import ControlLoop, yaw_of
+from benchmark.control import FIXED_COMMAND, ControlLoop, HeadingHold, yaw_of
 from benchmark.policies import Policy
 from robots import Robot
 from sims.base import Simulator
@@ -31,6 +31,7 @@ from sims.terrain import Terrain
 class EpisodeConfig:
     duration: float = 10.0  # s of simulated time
     eval_start: float = 0.0  # s; metrics cover [eval_start, duration]
+    heading_hold: bool = False  # steer through the yaw-rate command (benchmark.control.HeadingHold); off: fixed command
 
     def __post_init__(self) -> None:
         if not self.duration > 0:
@@ -127,7 +128,7 @@ def run_trial(sim: Simulator, robot: Robot, terrain: Terrain, policy: Policy, co
               seed: int, on_step: StepCallback | None = None, walking: Walking = Walking()) -> TrialResult:
     """Run one episode; `on_step(loop)` sees every control step (state, action, targets)."""
     start = time.perf_counter()
-    loop = ControlLoop(sim, robot, terrain)
+    loop = ControlLoop(sim, robot, terrain, heading=HeadingHold() if config.heading_hold else FIXED_COMMAND)
     steps = int(round(config.duration / loop.dt))
     eval_step = int(round(config.eval_start / loop.dt))
     loop.reset(seed)

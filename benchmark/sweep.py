@@ -34,6 +34,7 @@ from tqdm import tqdm
 from benchmark.cell import Resources, Runtime, SharedModels, TrialHooks, run_cell
 from benchmark.experiment import Trial
 from benchmark.interrupt import Interrupted, Interruption, ignore_sigint
+from benchmark.fingerprint import fingerprint_id, platform_fingerprint
 from benchmark.store import ResultStore
 from robots import load_robot
 from sims import ENGINES
@@ -229,7 +230,8 @@ def _ray(todo: list[Trial], runtime: Runtime, workers: int, address: str | None,
 
 
 def run_metadata(command: str | None = None) -> dict:
-    """What a row needs to be reproduced: package versions, git commit, machine."""
+    """What a row needs to be reproduced: package versions, git commit, machine and its fingerprint
+    (CPU, SIMD paths, BLAS kernel: `benchmark.fingerprint`)."""
     versions = {"python": platform.python_version()}
     for name in dict.fromkeys([*CORE_PACKAGES, *(p for e in ENGINES.values() for p in e.packages)]):
         try:
@@ -246,7 +248,8 @@ def run_metadata(command: str | None = None) -> dict:
     except (OSError, subprocess.CalledProcessError):
         pass
     return {"sweep_command": command, "promptwalk_version": versions.get("promptwalk"), "versions": json.dumps(versions),
-            "git_commit": commit, "git_dirty": dirty, "host": socket.gethostname(), "platform": platform.platform()}
+            "git_commit": commit, "git_dirty": dirty, "host": socket.gethostname(), "platform": platform.platform(),
+            "fingerprint": json.dumps(platform_fingerprint(), sort_keys=True), "fingerprint_id": fingerprint_id()}
 
 
 @dataclass(frozen=True)

@@ -127,6 +127,12 @@ def world_to_base(quat_wxyz: np.ndarray) -> np.ndarray:
     ])
 
 
+def rotate(matrix: np.ndarray, vector: np.ndarray) -> np.ndarray:
+    """matrix @ vector for a 3x3 rotation, summed in a fixed order: numpy's `@` goes through BLAS, whose
+    kernel (and so the last bit) depends on the CPU (README, "Reproducibility across CPUs")."""
+    return (matrix * vector).sum(axis=1)
+
+
 def world_to_base_batch(quats_wxyz: np.ndarray) -> np.ndarray:
     """`world_to_base` for N quaternions at once: (N, 4) -> (N, 3, 3)."""
     w, x, y, z = np.moveaxis(np.asarray(quats_wxyz, dtype=np.float64), -1, 0)

@@ -14,7 +14,7 @@ import mujoco
 import numpy as np
 
 from robots import Robot
-from sims.base import BodyPoses, Dynamics, PhysicsConfig, RobotState, initial_joint_pos
+from sims.base import BodyPoses, Dynamics, PhysicsConfig, RobotState, initial_joint_pos, rotate
 from sims.terrain import Terrain
 
 TERRAIN_BOTTOM = 0.1  # m, thickness of the heightfield box below its lowest point
@@ -151,7 +151,7 @@ class MujocoSim:
             time=d.time,
             base_pos=qpos[:3],
             base_quat=qpos[3:7],
-            base_lin_vel=qvel[:3] @ body_to_world,  # free joint: world-frame linear velocity
+            base_lin_vel=rotate(body_to_world.T, qvel[:3]),  # free joint: world-frame linear velocity
             base_ang_vel=qvel[3:6],  # free joint: body-frame angular velocity
             projected_gravity=-body_to_world[2],
             joint_pos=qpos[7:],

@@ -14,10 +14,12 @@ to the base link origin so every engine reports the same point.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from sims.base import (BodyPoses, Dynamics, PhysicsConfig, RobotState, initial_joint_pos, pd_torque, quiet_fds,
-                       world_to_base)
+                       rotate, world_to_base)
 
 
 with quiet_fds((1, 2)):  # banners on stdout, its build time on stderr
@@ -44,7 +46,7 @@ def add_armature(p: BulletClient, body: int, joints: list[int], armature: np.nda
     """
     for joint, extra in zip(joints, armature):
         axis = np.array(p.getJointInfo(body, joint)[13])
-        cosines = axis / np.linalg.norm(axis)
+        cosines = axis / math.sqrt(sum(a * a for a in axis))  # not np.linalg.norm: BLAS, CPU-dependent bits
         diagonal = np.array(p.getDynamicsInfo(body, joint)[2])
         p.changeDynamics(body, joint, localInertiaDiagonal=(diagonal + extra * cosines**2).tolist())
 
@@ -151,7 +153,7 @@ class PybulletSim:
         lin_com, ang = p.getBaseVelocity(body)
         quat = _xyzw_to_wxyz(quat_xyzw)
         rot = world_to_base(quat)  # world -> base
-        offset_world = rot.T @ self._com_offset
+        offset_world = rotate(rot.T, self._com_offset)
         ang_world = np.array(ang)
         lin_world = np.array(lin_com) - np.cross(ang_world, offset_world)  # velocity of the link origin
         states = p.getJointStates(body, self._joints)
@@ -160,8 +162,8 @@ class PybulletSim:
             time=self.time,
             base_pos=np.array(com) - offset_world,
             base_quat=quat,
-            base_lin_vel=rot @ lin_world,
-            base_ang_vel=rot @ ang_world,
+            base_lin_vel=rotate(rot, lin_world),
+            base_ang_vel=rotate(rot, ang_world),
             projected_gravity=-rot[:, 2],
             joint_pos=np.array([s[0] for s in states]),
             joint_vel=np.array([s[1] for s in states]),
@@ -189,7 +191,7 @@ class PybulletSim:
         p, body = self.client, self.body
         com, quat = p.getBasePositionAndOrientation(body)
         rot = world_to_base(_xyzw_to_wxyz(quat))
-        positions = [np.array(com) - rot.T @ self._com_offset]
+        positions = [np.array(com) - rotate(rot.T, self._com_offset)]
         quats = [_xyzw_to_wxyz(quat)]
         for s in p.getLinkStates(body, self._links[1:], computeForwardKinematics=True):
             positions.append(np.array(s[4]))

@@ -68,3 +68,41 @@ def test_ctrl_c_to_the_driver_alone_ends_its_workers(tmp_path):
     proc, children = _start(tmp_path / "store")
     os.kill(proc.pid, signal.SIGINT)
     _finish(proc, children, 5.0 + 8.0)
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP], ids=["SIGTERM", "SIGHUP"])
+def test_sigterm_or_sighup_to_a_sweep_ends_it_and_its_workers(tmp_path, signum):
+    """A process manager's SIGTERM or a closed terminal's SIGHUP, to the driver alone: out within 3 s."""
+    proc, children = _start(tmp_path / "store")
+    os.kill(proc.pid, signum)
+    _finish(proc, children, 3.0)
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP], ids=["SIGTERM", "SIGHUP"])
+def test_sigterm_or_sighup_to_bench_view_web_ends_the_viewer(tmp_path, signum):
+    import socket
+    import urllib.request
+
+    path = tmp_path / "walk.rrd"
+    made = subprocess.run([*BENCH, "run", "--policy", "stand", "--trials", "1", "--duration", "0.5", "--record",
+                           str(path)], capture_output=True, text=True, timeout=300)
+    assert made.returncode == 0, made.stderr
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    view = subprocess.Popen([*BENCH, "view", str(path), "--web", "--port", str(port)], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True)
+    deadline, serving = time.monotonic() + 60, False
+    while time.monotonic() < deadline and not serving:
+        try:
+            serving = urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=2).status == 200
+        except OSError:
+            time.sleep(0.5)
+    assert serving, "the web viewer never answered"
+    viewers = [c for c in psutil.Process(view.pid).children(recursive=True)]
+    assert viewers, "bench view started no viewer"
+    os.kill(view.pid, signum)
+    view.communicate(timeout=10)
+    time.sleep(3)
+    alive = [c for c in viewers if c.is_running() and c.status() != psutil.STATUS_ZOMBIE]
+    assert not alive, f"outlived bench view: {[c.cmdline()[:3] for c in alive]}"

@@ -64,3 +64,26 @@ def test_numpy_actor_equals_the_torch_network(tmp_path):
         expected = Stub.policy.action_net(Stub.policy.mlp_extractor.policy_net(x)).numpy()
     np.testing.assert_allclose(loaded(obs), np.clip(expected, -5, 5), atol=1e-5)
     assert loaded.meta == {"robot": "a1"}
+
+
+def test_an_llm_cells_seed_phase_runs_at_the_papers_fixed_command():
+    """Every example in the prompt is a function of what the prompt shows: no hidden yaw-rate command."""
+    from benchmark.cell import TrialHooks, make_cell, run_cell
+
+    class Commands(TrialHooks):
+        seen: list = []
+
+        def start(self, seed, sim, policy, episode):
+            return lambda loop: self.seen.append(loop.command.copy())
+
+    watch = Commands()
+    cell = make_cell({"policy": "llm", "model": "hold", "history": 5, "duration": 3.0, "llm_after": 2.0})
+    run_cell(cell, [0], hooks=[watch])
+    robot = load_robot("a1")
+    assert len(watch.seen) == 30
+    np.testing.assert_array_equal(np.array(watch.seen), np.tile(robot.command, (30, 1)))
+    held = make_cell({"policy": "llm", "model": "hold", "history": 5, "duration": 3.0, "llm_after": 2.0,
+                      "heading_hold": True})
+    watch.seen.clear()
+    run_cell(held, [0], hooks=[watch])
+    assert np.abs(np.array(watch.seen)[:, 2]).max() > 0  # the opt-in hold does steer

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import os
 import signal
 import subprocess
@@ -153,6 +155,20 @@ def test_rows_carry_parameters_metrics_versions_and_trajectories(uninterrupted):
     assert len(row["traj_joint_pos"][0]) == 12 
     assert row["sweep_command"].startswith("bench sweep ") and "--workers 2" in row["sweep_command"]
     assert pd.isna(row.get("encoding")) and row["promptwalk_version"] == "0.1.0"
+
+
+def test_rows_and_reports_say_which_machine_made_them(uninterrupted, tmp_path):
+    from benchmark.fingerprint import fingerprint_id, platform_fingerprint
+
+    row = uninterrupted.iloc[0]
+    stored = json.loads(row["fingerprint"])
+    assert row["fingerprint_id"] == fingerprint_id(stored) == fingerprint_id()
+    assert stored == json.loads(json.dumps(platform_fingerprint()))
+    assert stored["blas"] and stored["blas"][0]["architecture"]  # the OpenBLAS kernel this machine picked
+    write_reports(uninterrupted, tmp_path, "md")
+    md = (tmp_path / "tiny.md").read_text()
+    assert f"Made on: `{row['fingerprint_id']}` (4 trials): {stored['cpu']}" in md
+    assert f"kernel {stored['blas'][0]['architecture']}" in md
 
 
 def test_report_writes_markdown_html_csv_and_png_figures(tmp_path, uninterrupted):

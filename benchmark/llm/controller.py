@@ -17,6 +17,7 @@ from benchmark.cell import CellSpec, KeepPolicy, Resources, Runtime, run_cell
 from benchmark.llm.encodings import DEFAULT_ENCODING, ENCODINGS, get_encoding
 from benchmark.llm.models import (MODEL_FORMS, SERVER_KINDS, Constraint, LanguageModel, Reply, Sampling,
                                    check_model_spec, make_model)
+from benchmark.llm.progress import PromptReading
 from benchmark.llm.prompt import LAYOUTS, PARTS, PromptConfig, build_prompt, describe_robot
 from benchmark.llm.prompt_inputs import DEFAULT_OBSERVATION, OBSERVATIONS
 from benchmark.llm.reference import knn_answer
@@ -149,6 +150,7 @@ class LLMPolicy:
                                          regex=reply_regex(self.encoding, n))
         self.seed_action = np.zeros(robot.num_joints)  # what the seed policy would do now (for recordings)
         self.last_prompt = ""
+        self.reading = PromptReading()  # lines on stderr while a long prompt is read
         self._trial = _Trial()
 
     @classmethod
@@ -194,7 +196,15 @@ class LLMPolicy:
             self.model.set_reference(self.seed_action, self.encoding)
         # a trial's first query reuses nothing cached: a trial that followed another in one process could reuse
         # its cached prefix, computed in one batch with another prompt, and a greedy near-tie then flipped
-        reply = self.model.complete(prompt, self.settings.sampling, self.constraint, cold=not t.queries)
+        cold = not t.queries
+        if getattr(self.model, "reads_prompt", True):
+            with self.reading.reading(prompt, cold):
+                reply = self.model.complete(prompt, self.settings.sampling, self.constraint, cold=cold)
+            if not reply.cached:
+                self.reading.learn(prompt, reply.prompt_tokens, reply.prompt_tokens - reply.cached_tokens,
+                                   reply.latency_s)
+        else:
+            reply = self.model.complete(prompt, self.settings.sampling, self.constraint, cold=cold)
         action = parse_reply(reply.text, self.encoding, self.robot.num_joints)
         if getattr(self.model, "obeys_constraint", True) and self.constraint.violated_by(reply.text):
             t.violations += 1

@@ -33,6 +33,7 @@ class _TextModel:
     kind = ""
     cacheable = False  # answering is cheaper than a cache lookup
     obeys_constraint = False  # writes its answer itself: no server field to ignore, no violation to count
+    reads_prompt = False  # answers at once: no long read to report
 
     def __init__(self) -> None:
         self.id = f"reference:{self.kind}"

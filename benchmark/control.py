@@ -92,6 +92,7 @@ class ControlLoop:
 
     def reset(self, seed: int, target_heading: float = 0.0) -> np.ndarray:
         self.steps = 0
+        self.command = self.base_command.copy()  # a held heading's yaw rate must not outlive its episode
         self.target_heading = target_heading
         self.action = np.zeros(self.robot.num_joints)
         self.targets = self.robot.default_pose.copy()

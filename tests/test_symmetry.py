@@ -63,8 +63,14 @@ def test_mirrored_rollout_adds_the_mirror_image_of_every_transition():
 
 
 def test_straight_episodes_keep_the_papers_fixed_command():
-    env = LocomotionEnv("a1", "mujoco", "flat", randomization=Randomization(straight_share=1.0, push_interval_s=100))
+    """Also right after an episode whose heading hold steered: its yaw-rate command must not carry over."""
+    env = LocomotionEnv("a1", "mujoco", "flat", randomization=Randomization(straight_share=0.0, push_interval_s=100))
     env.reset(seed=3)
+    for _ in range(10):
+        env.step(np.zeros(12))
+    assert env.loop.command[2] != 0.0  # the hold steers toward its random heading
+    env.randomization = Randomization(straight_share=1.0, push_interval_s=100)
+    env.reset(seed=4)
     for _ in range(20):
         env.step(np.zeros(12))
         np.testing.assert_array_equal(env.loop.command, env.robot.command)

@@ -32,6 +32,10 @@ class Encoding:
     def encode(self, values: np.ndarray) -> str:
         return "[" + ", ".join(self.encode_value(v) for v in np.asarray(values, dtype=float)) + "]"
 
+    def quantize(self, values: np.ndarray) -> np.ndarray:
+        """`values` as written in this encoding and read back: the closest answer a reply can give."""
+        return self.decode([float(self.encode_value(v)) for v in np.asarray(values, dtype=float)])
+
     def decode(self, numbers: list[float]) -> np.ndarray:
         return np.clip(np.asarray(numbers, dtype=float) / self.scale - self.offset, self.low, self.high)
 

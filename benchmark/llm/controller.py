@@ -36,6 +36,13 @@ SHIFT_CHUNK = 64  # tokens: llama.cpp's n_cache_reuse, the smallest cached chunk
 CONTROL_DT = PhysicsConfig().control_dt  # s, the 10 Hz control period every engine runs
 
 
+def is_embedded(model: str) -> bool:
+    """Whether a model spec runs in-process on llama.cpp: `embedded[:PATH]` or a ladder name."""
+    from benchmark.llm.ladder import known
+
+    return model.split(":")[0] == "embedded" or known(model) is not None
+
+
 @dataclass(frozen=True)
 class LLMSettings:
     """What an LLM cell measures: the model, its prompt and the protocol's timing."""
@@ -87,7 +94,7 @@ class LLMSettings:
 
     def __post_init__(self) -> None:
         if self.history_mode == "auto":  # resolved here, so every row records the mode that ran
-            mode = "shifted" if self.model.split(":")[0] == "embedded" else "sliding"
+            mode = "shifted" if is_embedded(self.model) else "sliding"
             object.__setattr__(self, "history_mode", mode)
 
     @property

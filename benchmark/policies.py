@@ -114,6 +114,9 @@ class SeedSettings:
     seed_start: float = setting(0.0, "s: stand until then (1 in the LLM protocol)", minimum=0)
     llm_after: float = setting(0.0, "s: metrics start here (an LLM cell's takeover, for a reference row over the "
                                     "same phase)", minimum=0)
+    action_delay: float = setting(0.0, "s: the seed policy on the realtime clock (benchmark.clock): each action "
+                                       "applies this long after the observation it answers, the last one held "
+                                       "meanwhile; 0: every step, as trained", minimum=0)
 
     eval_start_setting = "llm_after"
 
@@ -138,22 +141,31 @@ class SeedPolicy:
     name = "rl"
 
     def __init__(self, robot: Robot, actor: MlpActor | None = None, path: Path | None = None,
-                 start: float = 0.0) -> None:
+                 start: float = 0.0, delay: float = 0.0) -> None:
+        from benchmark.clock import RealtimeClock
+
         self.actor = actor or MlpActor.load(path or seed_policy_path(robot))
         self.start, self._zeros = start, np.zeros(robot.num_joints)
+        self.clock = RealtimeClock(delay) if delay > 0 else None
 
     @classmethod
     def from_cell(cls, cell: CellSpec, robot: Robot, resources: Resources) -> SeedPolicy:
-        return cls(robot, path=seed_policy_path(robot, cell.settings), start=cell.settings.seed_start)
+        s = cell.settings
+        return cls(robot, path=seed_policy_path(robot, s), start=s.seed_start, delay=s.action_delay)
 
     def reset(self, seed: int) -> None:
-        pass
+        if self.clock is not None:
+            self.clock.reset(self._zeros)
 
     def act(self, obs: np.ndarray, state: RobotState) -> np.ndarray:
-        return self.actor(obs) if state.time >= self.start - 1e-9 else self._zeros
+        if state.time < self.start - 1e-9:
+            return self._zeros
+        if self.clock is None:
+            return self.actor(obs)
+        return self.clock.step(state.time, lambda: (self.actor(obs), 0.0))
 
     def metrics(self) -> dict:
-        return {}
+        return {} if self.clock is None else {"clock": "realtime", **self.clock.metrics()}
 
     def close(self) -> None:
         pass

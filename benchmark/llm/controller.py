@@ -14,6 +14,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from benchmark.cell import CellSpec, KeepPolicy, Resources, Runtime, run_cell
+from benchmark.clock import CLOCKS, MEASURED, RealtimeClock, parse_latency
 from benchmark.llm.encodings import DEFAULT_ENCODING, ENCODINGS, get_encoding
 from benchmark.llm.models import (MODEL_FORMS, SERVER_KINDS, Constraint, LanguageModel, Reply, Sampling,
                                    check_model_spec, make_model)
@@ -34,6 +35,7 @@ HISTORY_MODES = ("auto", "sliding", "block", "shifted")
 APPROXIMATE_MODES = ("shifted",)
 SHIFT_CHUNK = 64  # tokens: llama.cpp's n_cache_reuse, the smallest cached chunk it moves instead of recomputing
 CONTROL_DT = PhysicsConfig().control_dt  # s, the 10 Hz control period every engine runs
+REFERENCE_KINDS = ("hold", "knn", "replay", "oracle")
 
 
 def is_embedded(model: str) -> bool:
@@ -75,6 +77,12 @@ class LLMSettings:
                                      "default 0)", minimum=0)
     seed_start: float = setting(1.0, "s: the seed policy starts walking and filling the history (with --policy rl: "
                                      "default 0)", minimum=0)
+    clock: str = setting("paused", "paused: simulated time waits for every answer (the paper's protocol); realtime: "
+                                   "the robot holds its last targets while a query is in flight, an answer applies "
+                                   "at the first control step after it arrives, the next query starts at once",
+                         choices=CLOCKS)
+    latency: str = setting(MEASURED, "realtime clock: 'measured' (each query's wall time) or fixed seconds, simulated "
+                                     "(reproducible, any model)")
     block: int = 10  # pairs cut at once in block mode
 
     eval_start_setting = "llm_after"  # the setting that starts the evaluated phase
@@ -110,6 +118,12 @@ class LLMSettings:
             raise SettingError(f"seed_start ({self.seed_start:g} s) must not be after llm_after ({self.llm_after:g} s)")
         if self.block < 1:
             raise SettingError(f"block must be >= 1 pair, got {self.block}")
+        latency = parse_latency(self.latency)
+        if self.clock == "paused" and latency is not None:
+            raise SettingError("latency applies to the realtime clock: add --clock realtime")
+        if self.clock == "realtime" and latency is None and self.model.split(":")[0] in REFERENCE_KINDS:
+            raise SettingError(f"reference model '{self.model}' answers in microseconds: its measured latency says "
+                               "nothing; give a fixed --latency SECONDS")
 
 
 @dataclass
@@ -135,6 +149,7 @@ class _Trial:
     window_start: int = 0
     queries: list[Query] = field(default_factory=list)
     last_action: np.ndarray | None = None
+    clock: RealtimeClock | None = None  # realtime cells: the answer in flight and the held targets
     knn_agree: int = 0  # replies within one encoding step of the kNN answer on every value
     violations: int = 0  # replies that break the output constraint (a server that ignored it)
 
@@ -169,6 +184,8 @@ class LLMPolicy:
     def reset(self, seed: int) -> None:
         self.seed_policy.reset(seed)
         self._trial = _Trial(last_action=np.zeros(self.robot.num_joints))
+        if self.settings.clock == "realtime":
+            self._trial.clock = RealtimeClock(parse_latency(self.settings.latency))
 
     def _window(self) -> list[tuple[np.ndarray, np.ndarray]]:
         t, h = self._trial, self.settings.history
@@ -189,8 +206,14 @@ class LLMPolicy:
         elif state.time < s.llm_after - 1e-9:
             action = self.seed_action
             t.history.append((llm_obs, action))
-        else:
+        elif t.clock is None:
             action = self._query(llm_obs, state.time)
+            t.history.append((llm_obs, action))
+        else:  # realtime: the history records the 10 Hz stream and the targets actually applied (holds too)
+            if not t.clock.latencies:
+                t.clock.reset(t.last_action)  # until the first answer arrives, the seed policy's last targets
+            action = t.clock.step(state.time, lambda: (self._query(llm_obs, state.time),
+                                                       t.queries[-1].reply.latency_s))
             t.history.append((llm_obs, action))
         t.last_action = action
         return action
@@ -253,7 +276,10 @@ class LLMPolicy:
             "cache_hits": sum(x.reply.cached for x in q),
             "knn_agreement": self._trial.knn_agree / len(q),
             "approximate_history": self.settings.approximate,
+            "clock": self.settings.clock,
         }
+        if self._trial.clock is not None:
+            out.update(self._trial.clock.metrics())
         rt = self.runtime
         if rt.price_in is not None and rt.price_out is not None:
             cached = float(sum(x.reply.cached_tokens for x in q))

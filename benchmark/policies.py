@@ -114,9 +114,9 @@ class SeedSettings:
     seed_start: float = setting(0.0, "s: stand until then (1 in the LLM protocol)", minimum=0)
     llm_after: float = setting(0.0, "s: metrics start here (an LLM cell's takeover, for a reference row over the "
                                     "same phase)", minimum=0)
-    action_delay: float = setting(0.0, "s: the seed policy on the realtime clock (benchmark.clock): each action "
-                                       "applies this long after the observation it answers, the last one held "
-                                       "meanwhile; 0: every step, as trained", minimum=0)
+    action_delay: float = setting(0.0, "s: from llm_after on, the seed policy on the realtime clock "
+                                       "(benchmark.clock): each action applies this long after the observation it "
+                                       "answers, the last one held meanwhile; 0: every step, as trained", minimum=0)
 
     eval_start_setting = "llm_after"
 
@@ -141,27 +141,30 @@ class SeedPolicy:
     name = "rl"
 
     def __init__(self, robot: Robot, actor: MlpActor | None = None, path: Path | None = None,
-                 start: float = 0.0, delay: float = 0.0) -> None:
+                 start: float = 0.0, delay: float = 0.0, delay_from: float = 0.0) -> None:
         from benchmark.clock import RealtimeClock
 
         self.actor = actor or MlpActor.load(path or seed_policy_path(robot))
         self.start, self._zeros = start, np.zeros(robot.num_joints)
         self.clock = RealtimeClock(delay) if delay > 0 else None
-
+        self.delay_from, self._last = delay_from, self._zeros
     @classmethod
     def from_cell(cls, cell: CellSpec, robot: Robot, resources: Resources) -> SeedPolicy:
         s = cell.settings
-        return cls(robot, path=seed_policy_path(robot, s), start=s.seed_start, delay=s.action_delay)
+        return cls(robot, path=seed_policy_path(robot, s), start=s.seed_start, delay=s.action_delay,
+                   delay_from=s.llm_after)
 
     def reset(self, seed: int) -> None:
-        if self.clock is not None:
-            self.clock.reset(self._zeros)
+        self._last = self._zeros
 
     def act(self, obs: np.ndarray, state: RobotState) -> np.ndarray:
         if state.time < self.start - 1e-9:
             return self._zeros
-        if self.clock is None:
-            return self.actor(obs)
+        if self.clock is None or state.time < self.delay_from - 1e-9:
+            self._last = self.actor(obs)
+            return self._last
+        if not self.clock.latencies:
+            self.clock.reset(self._last)  # until the first delayed action arrives, the last one is held
         return self.clock.step(state.time, lambda: (self.actor(obs), 0.0))
 
     def metrics(self) -> dict:

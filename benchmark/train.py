@@ -202,7 +202,7 @@ def train(config: TrainConfig, stop: Callable[[], bool] = lambda: False, command
                 "wall_s": round(time.perf_counter() - started, 1), "command": command,
                 "versions": {"python": platform.python_version(), "torch": torch.__version__,
                              "stable_baselines3": stable_baselines3.__version__, "gymnasium": gymnasium.__version__,
-                             "mujoco": mujoco.__version__}, "ppo": asdict(c.ppo), "mirror": c.mirror, "net": net, "rewards": asdict(rewards),
+                             "mujoco": mujoco.__version__}, "ppo": asdict(c.ppo), "mirror": c.mirror, "symmetric": c.mirror, "net": net, "rewards": asdict(rewards),
                 "init_from": None if init_from is None else {"path": str(init_from),
                                                              **MlpActor.load(init_from).meta}}
 

@@ -75,3 +75,19 @@ def test_straight_episodes_keep_the_papers_fixed_command():
         env.step(np.zeros(12))
         np.testing.assert_array_equal(env.loop.command, env.robot.command)
     env.close()
+
+
+def test_symmetric_inference_is_exactly_mirror_equivariant(tmp_path):
+    import dataclasses
+
+    from benchmark.mlp import MlpActor
+
+    actor = MlpActor.load(load_robot("a1").folder / "policy.npz")
+    symmetric = dataclasses.replace(actor, meta={**actor.meta, "symmetric": True})
+    symmetric.save(tmp_path / "policy.npz")
+    loaded = MlpActor.load(tmp_path / "policy.npz")
+    obs = np.random.default_rng(2).normal(size=(4, 48))
+    for x in obs:
+        np.testing.assert_array_equal(loaded(mirror_rl_observation(x)), mirror_joints(loaded(x)))
+    if not actor.symmetric:  # a plain actor has a bias the symmetric one removes
+        assert max(np.abs(actor(mirror_rl_observation(x)) - mirror_joints(actor(x))).max() for x in obs) > 1e-3

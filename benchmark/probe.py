@@ -36,6 +36,7 @@ import hashlib
 import json
 import sys
 import time
+import zipfile
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -184,7 +185,7 @@ def load_probe_set(path: Path | str = DEFAULT_PROBE) -> ProbeSet:
             walks = tuple(Walk(w["cell"], int(w["seed"]), data[f"obs{i}"].astype(np.float64),
                                data[f"act{i}"].astype(np.float64), int(w["first_item"]))
                           for i, w in enumerate(meta.pop("walks")))
-    except (OSError, ValueError, KeyError, TypeError, EOFError) as err:
+    except (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile) as err:
         raise ProbeError(f"'{path}' is not a probe set readable by this version ({type(err).__name__}); make one "
                          "with 'bench probe --make'") from None
     if meta.get("version") != PROBE_VERSION:

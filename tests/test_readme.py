@@ -38,6 +38,14 @@ ADAPT: dict[str, tuple[list[str], dict[str, str]] | str] = {
     "bench run --policy rl --record walk.rrd": (["--trials", "2", "--duration", "1"], {}),
     "bench view walk.rrd": "opens a window; test_recorder.py reads the same file back and serves it with --web",
     "bench view walk.rrd --web": "serves until stopped; test_recorder.py runs it on loopback",
+    "bench eval --llm knn": (["--store", "leaderboard"], {}),
+    "bench probe --llm embedded --items 2": (["--cells", "a1/flat"], {"2": "1"}),
+    "bench models": ([], {}),
+    "bench leaderboard": (["--store", "leaderboard", "--out", "reports"], {}),
+    "bench run --llm knn --clock realtime --latency 0.3": (["--trials", "1", "--duration", "11"], {}),
+    "bench run --policy rl --action-delay 0.2": (["--trials", "1", "--duration", "2"], {}),
+    "bench sweep latency --workers 2": (["--dry-run"], {}),
+    "bench straight": (["--sim", "mujoco", "--trials", "1", "--duration", "3", "--out", "straight"], {}),
 }
 
 

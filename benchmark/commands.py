@@ -601,8 +601,8 @@ def cmd_eval(args, llm_values: dict, runtime: Runtime) -> int:
 
 
 def cmd_leaderboard(args) -> int:
-    from benchmark.leaderboard import write_markdown
+    from benchmark.leaderboard import write_leaderboard
 
-    path = write_markdown(args.store, args.out, command="bench " + " ".join(args.argv))
-    print(f"wrote {path}")
+    path, page = write_leaderboard(args.store, args.out, command="bench " + " ".join(args.argv))
+    print(f"wrote {path}" + (f" and {page}" if page else ""))
     return 0

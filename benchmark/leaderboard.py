@@ -1,6 +1,6 @@
 """The leaderboard: every scorecard row of a store, models as rows (`bench leaderboard`).
 
-    bench leaderboard                         reports/leaderboard/rows -> reports/leaderboard.md
+    bench leaderboard                         reports/leaderboard/rows -> reports/leaderboard.md and .html
 
 A headline table (probe skill with its 95% interval, closed-loop NWT and success where the full
 tier ran), the per-cell detail, paired comparisons (the probability, over bootstrap resamples of
@@ -122,12 +122,21 @@ def scatter(rows: list[dict], path: Path) -> Path | None:
     return path
 
 
-def write_markdown(store: Path | str = DEFAULT_STORE, out: Path | str = "reports",
-                   command: str = "bench leaderboard") -> Path:
+def write_leaderboard(store: Path | str = DEFAULT_STORE, out: Path | str = "reports",
+                      command: str = "bench leaderboard") -> tuple[Path, Path | None]:
+    """`OUT/leaderboard.md` and, when there are rows, the self-contained `OUT/leaderboard.html`."""
+    from benchmark.leaderboard_html import render
+
     rows = load_rows(store)
     out = Path(out)
+    page = None
+    if rows:
+        page = out / "leaderboard.html"
+        page.parent.mkdir(parents=True, exist_ok=True)
+        page.write_text(render(rows, command))
     lines = ["# Leaderboard", "", f"Regenerate: `{command}` (from the scorecard rows in `{store}`; each row says the "
-             "command that made it).", "",
+             "command that made it). " + ("The [interactive page](leaderboard.html) sorts by any column and holds "
+                                          "every row's settings; it needs no network." if page else ""), "",
              "The **probe** is teacher-forced imitation (`benchmark/probe.py`): on the same items for every model, "
              "the decoded reply is compared with the seed policy's action written in the encoding. Skill = 1 - "
              "error / error of `hold` (the newest action in the prompt): hold 0, oracle 1, below 0 worse than "
@@ -152,4 +161,4 @@ def write_markdown(store: Path | str = DEFAULT_STORE, out: Path | str = "reports
     path = out / "leaderboard.md"
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text("\n".join(lines))
-    return path
+    return path, page

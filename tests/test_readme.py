@@ -1,6 +1,7 @@
-"""Every command in the README's usage block runs as written (shortened where a flag allows).
+"""Every command in the README and the docs runs as written (shortened where a flag allows), or says why not.
 
-A README command missing from ADAPT fails the test, so a new recipe cannot land untested."""
+Commands are the indented code lines starting with `bench ` (or `$ bench `) in README.md and docs/*.md.
+A command missing from ADAPT fails the test, so a new recipe cannot land untested."""
 
 from __future__ import annotations
 
@@ -46,18 +47,26 @@ ADAPT: dict[str, tuple[list[str], dict[str, str]] | str] = {
     "bench run --policy rl --action-delay 0.2": (["--trials", "1", "--duration", "2"], {}),
     "bench sweep latency --workers 2": (["--dry-run"], {}),
     "bench straight": (["--sim", "mujoco", "--trials", "1", "--duration", "3", "--out", "straight"], {}),
+    "bench run --sim gazebo": "an example of a mistake: exit code 2 is checked in test_mistakes.py",
+    "bench report results/cross_engine --format html": (["--out", "html"], {"results/cross_engine": str(STORE)}),
+    "bench sweep --list": ([], {}),
+    "bench sweep cross_engine --only controller=rl --workers 2": (["--dry-run"], {}),
+    "bench sweep history --executor ray --ray-address ray://head:10001": "needs a Ray cluster; test_sweep.py runs "
+                                                                          "the ray executor on a local instance",
+    "bench sweep history --set model=openai:gpt-4o layout=chat --rate-limit 60 --workers 8": (["--dry-run"], {}),
+    "bench sweep normalization --dry-run": ([], {}),
 }
 
 
 def readme_commands() -> list[str]:
-    text = (ROOT / "README.md").read_text()
-    block = text[text.index("## Using it"):text.index("`bench <command> --help`")]
+    """The commands shown in README.md and in the docs pages, in order, each once."""
     commands = []
-    for line in block.splitlines():
-        if line.startswith("    bench "):
-            for part in line.split("#")[0].split("&&"):
-                commands.append(" ".join(part.split()))
-    return commands
+    for page in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]:
+        for line in page.read_text().splitlines():
+            if line.startswith(("    bench ", "    $ bench ")):
+                for part in line.split("#")[0].replace("$ ", "", 1).split("&&"):
+                    commands.append(" ".join(part.split()))
+    return list(dict.fromkeys(commands))
 
 
 def test_every_readme_command_is_covered():

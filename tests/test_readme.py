@@ -47,6 +47,7 @@ ADAPT: dict[str, tuple[list[str], dict[str, str]] | str] = {
     "bench run --policy rl --action-delay 0.2": (["--trials", "1", "--duration", "2"], {}),
     "bench sweep latency --workers 2": (["--dry-run"], {}),
     "bench straight": (["--sim", "mujoco", "--trials", "1", "--duration", "3", "--out", "straight"], {}),
+    "bench probe --llm knn --history 10": (["--items", "2"], {}),
     "bench run --sim gazebo": "an example of a mistake: exit code 2 is checked in test_mistakes.py",
     "bench report results/cross_engine --format html": (["--out", "html"], {"results/cross_engine": str(STORE)}),
     "bench sweep --list": ([], {}),

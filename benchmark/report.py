@@ -24,6 +24,7 @@ import pandas as pd
 
 from benchmark.experiment import ExperimentError, load_experiment
 from benchmark.fingerprint import describe
+from robots import load_robot
 from benchmark.report_latency import latency_section
 
 FORMATS = ("md", "html", "csv")
@@ -364,6 +365,23 @@ def write_reports(frame: pd.DataFrame, out: Path, fmt: str = "md", force: bool =
     return written
 
 
+def seed_policies(group: pd.DataFrame) -> str:
+    """Which seed policies the store's trials ran (sha256 prefix per robot), and whether they are the ones shipped
+    now: a store made with earlier policies says so, and is never mixed with a newer one silently."""
+    if "seed_policy_sha256" not in group or group["seed_policy_sha256"].isna().all():
+        return "Seed policies: not recorded."
+    parts = []
+    for robot, g in group.dropna(subset=["seed_policy_sha256"]).groupby("robot", sort=False):
+        used = sorted(g["seed_policy_sha256"].unique())
+        path = load_robot(str(robot)).folder / "policy.npz"
+        shipped = hashlib.sha256(path.read_bytes()).hexdigest()[:12] if path.is_file() else None
+        note = "the shipped one" if used == [shipped] else (
+            f"**not the shipped `{shipped}`: made with an earlier seed policy**" if shipped not in used
+            else f"**mixed: the shipped `{shipped}` and earlier ones**")
+        parts.append(f"{robot} `{'`, `'.join(used)}` ({note})")
+    return "Seed policies: " + "; ".join(parts) + "."
+
+
 def made_on(group: pd.DataFrame) -> str:
     """The machines a store's trials ran on, by fingerprint (rows from before fingerprints say so)."""
     if "fingerprint_id" not in group or group["fingerprint_id"].isna().all():
@@ -416,7 +434,7 @@ def _markdown_report(name: str, context: StoreContext, group: pd.DataFrame, tabl
     if versions or commits:
         lines += [f"Versions: {', '.join(f'{k} {v}' for k, v in versions.items())}; "
                   f"git commit {', '.join(commits) or 'unknown'}.", ""]
-    lines += [made_on(group), ""]
+    lines += [made_on(group), "", seed_policies(group), ""]
     lines += [f"Store digest: `{store_digest(group)}` ({len(group)} trials; `bench report` will not replace this "
               "file with a report of another store unless given --force).", ""]
     return "\n".join(lines)

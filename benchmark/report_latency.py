@@ -15,20 +15,16 @@ import pandas as pd
 BUDGET_SUCCESS = 0.8
 
 
-def _wilson(k: int, n: int, z: float = 1.96) -> tuple[float, float]:
-    from benchmark.report import wilson
-
-    return wilson(k, n, z)
-
-
 def latency_curves(group: pd.DataFrame) -> pd.DataFrame:
     """One row per controller, robot, terrain and latency: success with its Wilson interval, NWT mean and 95% CI."""
+    from benchmark.report import wilson  # report imports this module
+
     frame = group.assign(latency_s=group["latency"].astype(float))
     rows = []
     for (controller, robot, terrain, latency), g in frame.groupby(["controller", "robot", "terrain", "latency_s"],
                                                                    sort=False):
         n, k = len(g), int(g["success"].sum())
-        low, high = _wilson(k, n)
+        low, high = wilson(k, n)
         nwt = g["nwt"].to_numpy(float)
         half = 1.96 * nwt.std(ddof=1) / np.sqrt(n) if n > 1 else 0.0
         rows.append({"controller": controller, "robot": robot, "terrain": terrain, "latency_s": latency, "trials": n,

@@ -31,6 +31,7 @@ from benchmark.llm.controller import LLMSettings, is_embedded
 from benchmark.llm.models import check_model_spec
 from benchmark.probe import (DEFAULT_PROBE, ItemAnswers, ProbeRun, answer_items, load_probe_set, print_progress,
                              summarize_answers)
+from benchmark.report import wilson
 from benchmark.settings import SettingError
 from benchmark.store import ResultStore
 
@@ -123,15 +124,6 @@ def closed_loop_trials(tier: Tier, llm: LLMSettings, cells: tuple[str, ...] | No
                           **({"url": llm.url} if llm.url else {})}, "suite closed_loop")
         out += [Trial("scorecard", cell, seed, {"cell": name}, index) for seed in range(trials)]
     return out
-
-
-def wilson(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
-    if n == 0:
-        return 0.0, 1.0
-    p = successes / n
-    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
-    half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return float(max(0.0, centre - half)), float(min(1.0, centre + half))
 
 
 def summarize_closed_loop(frame) -> dict:

@@ -149,6 +149,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help="override a setting in every cell, e.g. history_mode=block model=openai:gpt-4o")
     sweep.add_argument("--only", nargs="+", action="extend", default=[], metavar="KEY=VALUE",
                        help="run only the cells matching every KEY=VALUE given, e.g. controller=rl sim=mujoco")
+    sweep.add_argument("--seeds", type=_number(int, True), default=None, metavar="N",
+                       help="run only the experiment's first N seeds (a slow engine's share; the report says the "
+                            "store is partial)")
     sweep.add_argument("--concurrency", type=_number(int, True), default=1, metavar="N",
                        help="remote LLM servers: up to N trials in flight as threads of one process, sharing one "
                             "client and rate limit (with --workers 1; default 1)")

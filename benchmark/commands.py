@@ -214,6 +214,8 @@ def cmd_sweep(args, overrides_text: list[str], only_text: list[str]) -> int:
         raise CliError("--executor ray needs Ray: pip install -e '.[ray]'")
     if not trials:
         raise CliError(f"no cell of '{experiment.name}' matches --only {' '.join(only_text)}")
+    if args.seeds is not None:
+        trials = [t for t in trials if t.seed in experiment.seeds[:args.seeds]]
     root = Path(args.results or f"results/{experiment.name}")
     if root.exists() and not root.is_dir():
         raise CliError(f"--results '{root}' is a file; give a directory (the store holds one file per trial)")

@@ -38,8 +38,8 @@ STANDARD_ERRORS = 5.0
 
 def _reruns():
     frame = pd.read_parquet(STORE)
-    rows = frame[(frame["policy"] == "rl") & frame["sim"].isin(["mujoco", "pybullet"])]
-    assert len(rows) == 40
+    rows = frame[(frame["policy"] == "rl") & frame["sim"].isin(["mujoco", "pybullet"]) & (frame["seed"] < 5)]
+    assert len(rows) == 40  # 8 cells x the first 5 seeds: a few seconds
     keys = setting_fields()
     for _, group in rows.groupby("cell_id"):
         first = group.iloc[0]

@@ -71,7 +71,7 @@ def test_shipped_experiments_expand_into_the_papers_grids():
     assert len({t.id for t in cross.trials()}) == len(cross.trials())
     # A slice keeps each cell's place in the whole grid, so tables of slices run apart line up.
     place = {t.id: t.cell_index for t in cross.trials()}
-    assert all(place[t.id] == t.cell_index for t in rl) and rl[-1].cell_index > len(rl) // 5
+    assert all(place[t.id] == t.cell_index for t in rl) and rl[-1].cell_index > len(rl) // 20
 
 
 @pytest.mark.parametrize("text, message", [

@@ -107,7 +107,10 @@ class LocomotionEnv(gym.Env):
         terminated = loop.fall is not None
         truncated = loop.steps >= self.max_steps
         info = {"fall": loop.fall} if terminated else {}
-        return self._observe(), (0.0 if terminated else reward), terminated, truncated, info
+        obs = self._observe()
+        if not np.isfinite(obs).all() or not np.isfinite(reward):  # a blown-up engine step must not reach PPO
+            obs, reward, terminated = np.zeros_like(obs), 0.0, True
+        return obs, (0.0 if terminated else reward), terminated, truncated, info
 
     def close(self) -> None:
         self.sim.close()

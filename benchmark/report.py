@@ -149,6 +149,16 @@ def engine_table(frame: pd.DataFrame) -> pd.DataFrame | None:
     return wide[order].fillna("-").reset_index()
 
 
+HEADLINE = ("trials", "NWT", "success rate", "distance (m)")
+
+
+def headline_table(table: pd.DataFrame) -> pd.DataFrame:
+    """The few columns that answer the question: the grid axes, then trials, NWT, success and distance."""
+    metric_headings = {heading for heading, _, _ in METRICS.values()} | {"trials"}
+    axes = [c for c in table.columns if c not in metric_headings]
+    return table[[*axes, *[c for c in HEADLINE if c in table.columns]]]
+
+
 def to_markdown(table: pd.DataFrame) -> str:
     def cell(v) -> str:
         if isinstance(v, float):
@@ -423,7 +433,8 @@ def _markdown_report(name: str, context: StoreContext, group: pd.DataFrame, tabl
         lines += ["", context.partial]
     if context.commands:
         lines += ["", "Made with:", "", *[f"    {c}" for c in context.commands]]
-    lines += ["", to_markdown(table)]
+    lines += ["", to_markdown(headline_table(table)), "", "Detail (every metric; the HTML and CSV reports hold the "
+              "same):", "", to_markdown(table)]
     if engines is not None:
         lines += ["", "Engines side by side (success rate / NWT):", "", to_markdown(engines)]
     if published is not None:

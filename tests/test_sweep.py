@@ -174,7 +174,9 @@ def test_rows_and_reports_say_which_machine_made_them(uninterrupted, tmp_path):
 def test_report_writes_markdown_html_csv_and_png_figures(tmp_path, uninterrupted):
     written = write_reports(uninterrupted, tmp_path, "md")
     md = (tmp_path / "tiny.md").read_text()
-    table = [line for line in md.splitlines() if line.startswith("|")]
+    lines = [line for line in md.splitlines() if line.startswith("|")]
+    headline, table = lines[:4], lines[4:8]  # a narrow headline table, then every metric
+    assert headline[0] == "| terrain | trials | NWT | success rate | distance (m) |"
     assert table[0].startswith("| terrain | trials | NWT | success rate | upright")
     assert [line.split(" | ")[0] for line in table[2:]] == ["| flat", "| rough"]  # grid order
     # standing is not walking: NWT 0, success 0 with its 95% interval at 2 trials, upright throughout

@@ -20,11 +20,31 @@ MIN_SUCCESS = {cell: 0.8 for cell in MIN_SPEED}
 
 
 @pytest.mark.parametrize(("robot_name", "terrain"), sorted(MIN_SPEED))
-def test_shipped_policy_walks_straight_in_mujoco(robot_name, terrain):
+def test_shipped_policy_walks_in_mujoco_at_the_fixed_command(robot_name, terrain):
     trials = run_cell(CellSpec(sim="mujoco", robot=robot_name, terrain=terrain, policy="rl"), range(20))
     assert np.mean([t.success for t in trials]) >= MIN_SUCCESS[(robot_name, terrain)], [t.fall_reason for t in trials]
     assert np.mean([t.mean_vx for t in trials]) >= MIN_SPEED[(robot_name, terrain)]
+
+
+@pytest.mark.parametrize(("robot_name", "terrain"), sorted(MIN_SPEED))
+def test_with_the_heading_hold_every_shipped_policy_keeps_its_line(robot_name, terrain):
+    """Seed-policy-only evaluation may steer (`--heading-hold`): sideways drift stays under 1 m in 10 s."""
+    trials = run_cell(CellSpec(sim="mujoco", robot=robot_name, terrain=terrain, policy="rl", heading_hold=True),
+                      range(20))
     assert np.mean([abs(t.lateral_drift_m) for t in trials]) < 1.0, [t.lateral_drift_m for t in trials]
+
+
+STRAIGHT = [r for r in available_robots() if MlpActor.load(load_robot(r).folder / "policy.npz").symmetric]
+
+
+@pytest.mark.parametrize("robot_name", STRAIGHT)  # A1's shipped policy predates the fixed-command training
+def test_a_policy_trained_for_the_fixed_command_walks_straight_without_help(robot_name):
+    """MuJoCo, flat, 19 s of walking at the fixed command: the straight-walking targets (bench straight)."""
+    from benchmark.straight import TARGETS, StraightConfig, measure
+
+    frame, _ = measure(StraightConfig(robot=(robot_name,), sim=("mujoco",), trials=3))
+    assert (frame["yaw_rad"].abs() <= TARGETS["abs_yaw_rad"]).all(), frame
+    assert (frame["y_m"].abs() <= TARGETS["abs_y_m"]).all() and (frame["x_m"] >= TARGETS["x_m"]).all(), frame
 
 
 @pytest.mark.parametrize("robot_name", available_robots())

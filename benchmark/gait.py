@@ -43,6 +43,7 @@ class GaitConfig:
     trials: int = setting(3, "trials (seeds 0..N-1)", positive=True)
     duration: float = setting(10.0, "seconds per trial", positive=True)
     skip_s: float = setting(2.0, "seconds left out at the start (the gait settles)", minimum=0)
+    heading_hold: bool = setting(False, "steer through the yaw-rate command (off: the paper's fixed command)")
     out: str = setting("reports", "folder for gait.md; figures go to OUT/figures")
 
 
@@ -83,7 +84,7 @@ class TrialMarks(TrialHooks):
 def record(config: GaitConfig, robot_name: str) -> tuple[Robot, np.ndarray, np.ndarray, list]:
     """(robot, joint angles (n, 12), foot contacts (n, 4), fall times) after `skip_s` of every trial."""
     values = {"sim": config.sim, "robot": robot_name, "terrain": config.terrain, "policy": "rl",
-              "duration": config.duration}
+              "duration": config.duration, "heading_hold": config.heading_hold}
     if config.policy_file:
         values["policy_file"] = config.policy_file
     cell = make_cell(values, where="bench gait")

@@ -392,6 +392,18 @@ def seed_policies(group: pd.DataFrame) -> str:
     return "Seed policies: " + "; ".join(parts) + "."
 
 
+def command_mode(group: pd.DataFrame) -> str:
+    """Whether the store's seed phases ran at the paper's fixed command or steered by the heading hold."""
+    held = group["heading_hold"] if "heading_hold" in group else pd.Series([None] * len(group))
+    if held.isna().all():
+        return ("Command: the heading hold steered the seed policy (a store from before the fixed command; "
+                "`heading_hold` not recorded).")
+    values = sorted({bool(v) for v in held.dropna()})
+    return {(False,): "Command: fixed at the robot's (the paper's protocol).",
+            (True,): "Command: the heading hold steered the seed policy (--heading-hold)."}.get(
+        tuple(values), "Command: **mixed**: some trials at the fixed command, some steered (column `heading_hold`).")
+
+
 def made_on(group: pd.DataFrame) -> str:
     """The machines a store's trials ran on, by fingerprint (rows from before fingerprints say so)."""
     if "fingerprint_id" not in group or group["fingerprint_id"].isna().all():
@@ -445,7 +457,7 @@ def _markdown_report(name: str, context: StoreContext, group: pd.DataFrame, tabl
     if versions or commits:
         lines += [f"Versions: {', '.join(f'{k} {v}' for k, v in versions.items())}; "
                   f"git commit {', '.join(commits) or 'unknown'}.", ""]
-    lines += [made_on(group), "", seed_policies(group), ""]
+    lines += [made_on(group), "", seed_policies(group) + " " + command_mode(group), ""]
     lines += [f"Store digest: `{store_digest(group)}` ({len(group)} trials; `bench report` will not replace this "
               "file with a report of another store unless given --force).", ""]
     return "\n".join(lines)

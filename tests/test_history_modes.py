@@ -33,6 +33,7 @@ def test_each_mode_gets_the_llamacpp_settings_it_needs(mode, reuse):
         resources.close()
 
 
+@pytest.mark.slow
 def test_the_drift_report_compares_every_reply_with_a_cold_recompute(capsys):
     from benchmark.llm.latency import measure
 
@@ -46,6 +47,7 @@ def test_the_drift_report_compares_every_reply_with_a_cold_recompute(capsys):
     assert "outcome_changed" in shifted and "outcome_changed" not in sliding
 
 
+@pytest.mark.slow
 def test_ngram_drafting_is_measured_against_decoding_without_it():
     from benchmark.llm.latency import measure
 
@@ -54,6 +56,7 @@ def test_ngram_drafting_is_measured_against_decoding_without_it():
     assert drafted["same_as_no_draft"] >= 2 / 3  # greedy drafting keeps the reply (batch effects aside)
 
 
+@pytest.mark.slow
 def test_a_trial_answers_the_same_after_another_trial_as_alone():
     """A sweep worker keeps one model for many trials; each trial's first query reuses nothing cached, so
     the previous trial's keys and values cannot flip its replies. (Without that, this trial reused the

@@ -46,6 +46,7 @@ def _finish(proc: subprocess.Popen, children: list[psutil.Process], limit_s: flo
     return took, err
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("signals, limit_s", [(1, 5.0 + 8.0), (2, 4.0)])
 def test_ctrl_c_on_a_sweep_exits_130_with_no_orphans_and_resumes(tmp_path, signals, limit_s):
     results = tmp_path / "store"
@@ -64,12 +65,14 @@ def test_ctrl_c_on_a_sweep_exits_130_with_no_orphans_and_resumes(tmp_path, signa
     assert len(frame) == 4 and frame["trial_id"].is_unique
 
 
+@pytest.mark.slow
 def test_ctrl_c_to_the_driver_alone_ends_its_workers(tmp_path):
     proc, children = _start(tmp_path / "store")
     os.kill(proc.pid, signal.SIGINT)
     _finish(proc, children, 5.0 + 8.0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP], ids=["SIGTERM", "SIGHUP"])
 def test_sigterm_or_sighup_to_a_sweep_ends_it_and_its_workers(tmp_path, signum):
     """A process manager's SIGTERM or a closed terminal's SIGHUP, to the driver alone: out within 3 s."""

@@ -86,6 +86,7 @@ def validation():
     return validate(ValidateConfig(duration_s=0.6))[0]
 
 
+@pytest.mark.slow
 def test_newton_and_mujoco_step_responses_agree(validation):
     rise = agreement(validation, "newton", "mujoco")
     assert (rise < 0.15).all(), rise
@@ -94,6 +95,7 @@ def test_newton_and_mujoco_step_responses_agree(validation):
     assert (gap < 5.0).all(), gap
 
 
+@pytest.mark.slow
 def test_engines_follow_the_one_joint_model(validation):
     for engine in ("mujoco", "newton"):
         rise = agreement(validation, engine, REFERENCE)

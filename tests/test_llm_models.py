@@ -266,6 +266,7 @@ def _run_cli(args: list[str]) -> tuple[int, str, str]:
     return code, out.getvalue(), err.getvalue()
 
 
+@pytest.mark.slow
 def test_llm_run_end_to_end_on_the_embedded_model(tmp_path, monkeypatch):
     monkeypatch.setenv("PROMPTWALK_CACHE", str(tmp_path))
     record = tmp_path / "llm.rrd"
@@ -294,6 +295,7 @@ def test_llm_run_end_to_end_on_the_embedded_model(tmp_path, monkeypatch):
     assert repeat["cache_hits"] == trial["queries"] and repeat["distance_m"] == trial["distance_m"]
 
 
+@pytest.mark.slow
 def test_server_dying_mid_run_keeps_finished_trials_and_never_prints_the_key(embedded, tmp_path, monkeypatch):
     monkeypatch.setenv("PROMPTWALK_CACHE", str(tmp_path))
     monkeypatch.setenv("PROMPTWALK_LLM_API_KEY", SECRET)

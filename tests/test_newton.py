@@ -32,6 +32,7 @@ def test_worlds_step_independently_with_their_own_seeds():
     assert all(s.foot_contact.all() and not s.fall_contact for s in (after[0], after[2]))
 
 
+@pytest.mark.slow
 def test_standing_matches_mujoco_within_3_cm(make):
     heights = {}
     for engine in ("mujoco", "newton"):
@@ -53,6 +54,7 @@ def test_devices_and_solvers_are_checked():
         make_worlds("pybullet", robot, flat, worlds=2)
 
 
+@pytest.mark.slow
 def test_perf_reports_one_and_many_worlds():
     out = subprocess.run([sys.executable, "-m", "benchmark.cli", "perf", "--sim", "newton", "--worlds", "4",
                           "--steps", "3", "--rounds", "1", "--json"], capture_output=True, text=True, timeout=600)
@@ -83,6 +85,7 @@ def test_an_odd_number_of_substeps_ends_in_the_state_it_began_in():
         np.testing.assert_allclose(a.base_pos, b.base_pos, atol=1e-6)
 
 
+@pytest.mark.slow
 def test_seed_policy_walks_rough_ground_on_newtons_own_contacts(capfd):
     """Newton's CollisionPipeline on the heightfield (the default): the shipped A1 policy walks, and the
     feet it reports on the ground come from Newton's contacts (mujoco_warp's own heightfield contacts

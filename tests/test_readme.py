@@ -82,10 +82,13 @@ def workdir(tmp_path_factory):
     return tmp_path_factory.mktemp("readme")
 
 
-RUNNABLE = [c for c in readme_commands() if isinstance(ADAPT.get(c), tuple)]
+SLOW = ("bench latency", "bench run --duration 2.5", "bench probe --llm embedded", "bench run --sim newton",
+        "bench perf --sim newton", "bench train")  # over 30 s on 2 cores: `pytest -m "not slow"` leaves them out
+RUNNABLE = [pytest.param(c, marks=[pytest.mark.slow] if c.startswith(SLOW) else [], id=c[6:50])
+            for c in readme_commands() if isinstance(ADAPT.get(c), tuple)]
 
 
-@pytest.mark.parametrize("command", RUNNABLE, ids=[c[6:50] for c in RUNNABLE])
+@pytest.mark.parametrize("command", RUNNABLE)
 def test_readme_command_runs(command, workdir, monkeypatch):
     extra, replace = ADAPT[command]
     words = [replace.get(w, w) for w in shlex.split(command)[1:]] + extra

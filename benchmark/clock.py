@@ -85,7 +85,8 @@ class RealtimeClock:
 
     def metrics(self) -> dict:
         held = self.held_steps + ([self._steps_on_current] if self._current_is_answer else [])
-        return {"query_latencies_s": [round(x, 6) for x in self.latencies], "held_steps": held,
+        # None, not [], when nothing was asked (a fall before the takeover): the store keeps numeric lists as lists
+        return {"query_latencies_s": [round(x, 6) for x in self.latencies] or None, "held_steps": held or None,
                 "mean_held_steps": float(np.mean(held)) if held else None,
                 "answers_applied": len(held), "mean_latency_s": float(np.mean(self.latencies)) if self.latencies
                 else None}

@@ -2,7 +2,7 @@
 
 A controller's **latency budget** in a cell is the largest latency at which it still walks with
 success >= 0.8 (and at every smaller latency too: one lucky cell after a failing one does not
-extend it); "< smallest" when it never does.
+extend it); "none" when it does not even at the smallest latency tried.
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ def budgets(curves: pd.DataFrame) -> pd.DataFrame:
                 break
             budget = latency
         out.setdefault(controller, {})[f"{robot}/{terrain}"] = (
-            f"{budget:g} s" if budget is not None else f"< {g['latency_s'].min():g} s")
+            f"{budget:g} s" if budget is not None else f"none (< {BUDGET_SUCCESS:g} at {g['latency_s'].min():g} s)")
     return pd.DataFrame(out).T.rename_axis("controller").reset_index()
 
 

@@ -63,3 +63,12 @@ def test_clock_and_latency_parsing():
     answers = iter([(np.ones(2), 0.25), (2 * np.ones(2), 0.05)])
     out = [clock.step(t / 10, lambda: next(answers)).copy() for t in range(4)]
     assert [o[0] for o in out] == [0.0, 0.0, 0.0, 1.0]  # 0.25 s: arrives before the step at 0.3 s
+
+
+def test_a_clock_that_was_never_asked_reports_no_lists():
+    """A trial that falls before the takeover asks nothing: None, not [] (which a store would write as text and
+    a snapshot could not mix with the other rows' numeric lists)."""
+    clock = RealtimeClock(0.3)
+    clock.reset(np.zeros(12))
+    metrics = clock.metrics()
+    assert metrics["query_latencies_s"] is None and metrics["held_steps"] is None

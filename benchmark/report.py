@@ -180,6 +180,8 @@ def paper_table(frame: pd.DataFrame, paper: dict) -> pd.DataFrame | None:
     names = {"nwt": "NWT", "success": "success", "gpt4_input_tokens": "GPT-4 input tokens",
              "gpt4_output_tokens": "GPT-4 output tokens"}
     llm = frame[frame["policy"] == "llm"]
+    if "cell_index" in llm:  # grid order, not the store's file order (trial ids are hashes)
+        llm = llm.sort_values(["cell_index", "seed"], kind="stable")
     who = "controller" if "controller" in llm and llm["controller"].notna().any() else "model"
     rows = []
     for value in dict.fromkeys(llm[axis].dropna()):
@@ -308,9 +310,15 @@ def store_context(name: str, frame: pd.DataFrame) -> StoreContext:
         return StoreContext(name, commands, {})
     expected = {t.id for t in experiment.trials()}
     stored = expected & set(frame["trial_id"].astype(str))
-    partial = "" if len(stored) == len(expected) else (
-        f"**Partial store**: {len(stored)} of the grid's {len(expected)} trials; cells with fewer "
-        "trials than seeds, or missing from the table, are not finished (`bench sweep` resumes).")
+    if not stored:  # every row's settings differ from today's grid: an earlier protocol, not a partial run
+        partial = (f"**Earlier protocol**: none of these {len(frame)} trials is in today's grid of {len(expected)} "
+                   "(they were made before settings this version records, such as the fixed command and the "
+                   "clock); `bench sweep` would run the grid anew. The rows are kept as made.")
+    elif len(stored) == len(expected):
+        partial = ""
+    else:
+        partial = (f"**Partial store**: {len(stored)} of the grid's {len(expected)} trials; cells with fewer "
+                   "trials than seeds, or missing from the table, are not finished (`bench sweep` resumes).")
     return StoreContext(experiment.title, commands, experiment.paper, partial)
 
 

@@ -233,8 +233,9 @@ def test_reference_rows_cover_the_llm_phase_from_the_same_state_and_tables_show_
         assert [list(q) for q in seed_traj[:before]] == [list(q) for q in hold_traj[:before]]
         assert [list(q) for q in seed_traj[before:]] != [list(q) for q in hold_traj[before:]]
     write_reports(frame, tmp_path / "reports")
-    table = [line for line in (tmp_path / "reports" / "phase.md").read_text().splitlines() if line.startswith("| ")]
-    assert all(" [" in line and "±" in line for line in table[1:]), table
+    table = [line for line in (tmp_path / "reports" / "phase.md").read_text().splitlines()
+             if line.startswith("| ") and not line.startswith("| controller |")]  # rows of both tables
+    assert len(table) == 4 and all(" [" in line and "±" in line for line in table), table
     repeated = summary_table(frame).set_index("controller")["repeated targets"]
     assert repeated["hold"] == 1.0 and np.isnan(repeated["seed_policy"])  # frozen by design; not an LLM row
 
@@ -257,8 +258,11 @@ def test_the_papers_figures_stand_beside_the_stores_in_table_and_figure(tmp_path
     write_reports(committed, tmp_path / "reports", fmt="md")
     text = (tmp_path / "reports" / "history.md").read_text()
     assert "Beside the paper (Wang et al. 2023, GPT-4" in text and "| 50 | 7298 |" in text
-    assert "Partial store" not in text  # all 105 trials of the grid
-    write_reports(committed.iloc[:-7], tmp_path / "partial", fmt="md")
+    # Made with the heading hold, before the fixed command: no row is in today's grid, and the report says so.
+    assert "Partial store" not in text and "**Earlier protocol**: none of these 105 trials" in text
+    trials = load_experiment("history").trials()
+    current = committed.assign(trial_id=[t.id for t in trials[:len(committed)]])
+    write_reports(current.iloc[:-7], tmp_path / "partial", fmt="md")
     assert "**Partial store**: 98 of the grid's 105 trials" in (tmp_path / "partial" / "history.md").read_text()
 
 

@@ -46,9 +46,8 @@ import numpy as np
 from benchmark.cell import Runtime, TrialHooks, make_cell, run_cell
 from benchmark.llm.controller import CONTROL_DT, LLMSettings, _new_model
 from benchmark.llm.encodings import get_encoding
-from benchmark.llm.models import Constraint
 from benchmark.llm.prompt import build_prompt, describe_robot
-from benchmark.llm.replies import gbnf_grammar, json_schema, parse_reply, reply_regex
+from benchmark.llm.replies import parse_reply, reply_constraint
 from benchmark.mlp import MlpActor
 from benchmark.observation import llm_observation
 from benchmark.policies import seed_policy_path
@@ -250,16 +249,15 @@ def answer_items(probe: ProbeSet, run: ProbeRun, runtime: Runtime = Runtime(), m
         approximate = run.window == "slide" and s.approximate
         model = _new_model(dataclasses.replace(s, history_mode="shifted" if approximate else "sliding"), runtime)
     total = sum(1 for _ in _prompts(probe, run))
-    rows, started, descriptions, last_walk = [], time.perf_counter(), {}, None
+    rows, started, per_robot, last_walk = [], time.perf_counter(), {}, None
     try:
         for walk, k, history, obs, label in _prompts(probe, run):
-            robot = load_robot(walk.robot)
-            if walk.robot not in descriptions:
-                descriptions[walk.robot] = describe_robot(robot, s.prompt, control_hz=1.0 / CONTROL_DT)
-            n = robot.num_joints
-            constraint = Constraint(grammar=gbnf_grammar(enc, n), schema=json_schema(enc, n),
-                                    regex=reply_regex(enc, n)) if s.constrained else Constraint()
-            prompt = build_prompt(descriptions[walk.robot], history, obs, s.prompt)
+            if walk.robot not in per_robot:  # description and constraint: once per robot, as in closed loop
+                robot = load_robot(walk.robot)
+                per_robot[walk.robot] = (describe_robot(robot, s.prompt, control_hz=1.0 / CONTROL_DT),
+                                         reply_constraint(enc, robot.num_joints, s.constrained), robot.num_joints)
+            description, constraint, n = per_robot[walk.robot]
+            prompt = build_prompt(description, history, obs, s.prompt)
             target = enc.quantize(label)
             held_q = enc.quantize(history[-1][1] if history else np.zeros(n))
             if getattr(model, "privileged", False):

@@ -16,13 +16,13 @@ import numpy as np
 from benchmark.cell import CellSpec, KeepPolicy, Resources, Runtime, run_cell
 from benchmark.clock import CLOCKS, MEASURED, RealtimeClock, parse_latency
 from benchmark.llm.encodings import DEFAULT_ENCODING, ENCODINGS, get_encoding
-from benchmark.llm.models import (MODEL_FORMS, SERVER_KINDS, Constraint, LanguageModel, Reply, Sampling,
+from benchmark.llm.models import (MODEL_FORMS, SERVER_KINDS, LanguageModel, Reply, Sampling,
                                    check_model_spec, make_model)
 from benchmark.llm.progress import PromptReading
 from benchmark.llm.prompt import LAYOUTS, PARTS, PromptConfig, build_prompt, describe_robot
 from benchmark.llm.prompt_inputs import DEFAULT_OBSERVATION, OBSERVATIONS
 from benchmark.llm.reference import knn_answer
-from benchmark.llm.replies import gbnf_grammar, json_schema, parse_reply, reply_regex
+from benchmark.llm.replies import parse_reply, reply_constraint
 from benchmark.llm.tokens import gpt4_tokens
 from benchmark.observation import llm_observation
 from benchmark.policies import SeedPolicy
@@ -165,11 +165,7 @@ class LLMPolicy:
         self.model = model or _new_model(settings, self.runtime)
         self.encoding = get_encoding(settings.encoding)
         self.description = describe_robot(robot, settings.prompt, control_hz=1.0 / CONTROL_DT)
-        self.constraint = Constraint()
-        if settings.constrained:  # one rule in every dialect; each model sends the one its server reads
-            n = robot.num_joints
-            self.constraint = Constraint(grammar=gbnf_grammar(self.encoding, n), schema=json_schema(self.encoding, n),
-                                         regex=reply_regex(self.encoding, n))
+        self.constraint = reply_constraint(self.encoding, robot.num_joints, settings.constrained)
         self.seed_action = np.zeros(robot.num_joints)  # what the seed policy would do now (for recordings)
         self.last_prompt = ""
         self.reading = PromptReading()  # lines on stderr while a long prompt is read

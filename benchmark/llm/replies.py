@@ -82,3 +82,13 @@ def reply_regex(enc: Encoding, count: int = 12) -> str:
         low, high = enc.integer_range
         num = ("-?" if low < 0 else "") + f"[0-9]{{1,{len(str(high))}}}"
     return f"\\[{num}(, {num}){{{count - 1}}}\\]"
+
+
+def reply_constraint(enc: Encoding, count: int = 12, constrained: bool = True):
+    """The output constraint a reply is held to, written in every dialect (each model sends the one its
+    server reads); no constraint when `constrained` is off (the paper's setting)."""
+    from benchmark.llm.models import Constraint
+
+    if not constrained:
+        return Constraint()
+    return Constraint(grammar=gbnf_grammar(enc, count), schema=json_schema(enc, count), regex=reply_regex(enc, count))

@@ -131,6 +131,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_fields(train, TrainConfig)
     train.add_argument("--reward", nargs="+", action="extend", default=[], metavar="TERM=WEIGHT",
                        help="override reward weights, e.g. yaw_rate=-2 heading=-2 (see benchmark/rewards.py)")
+    train.add_argument("--ppo", nargs="+", action="extend", default=[], metavar="NAME=VALUE",
+                       help="override PPO settings, e.g. learning_rate=1e-4 (see PPOSettings in benchmark/train.py)")
 
     sweep = sub.add_parser("sweep", help="run an experiment grid in parallel into a resumable results store",
                            description=_doc("benchmark.sweep"), formatter_class=fmt)
@@ -289,7 +291,8 @@ def dispatch(args: argparse.Namespace) -> int:
             return commands.cmd_sweep(args, args.overrides, args.only)
         case "train":
             rewards = {k: _float(v, k) for k, v in commands.key_values(args.reward, "--reward", "TERM=NUMBER").items()}
-            return commands.cmd_train(_settings(args, TrainConfig), rewards)
+            ppo = {k: _float(v, k, "--ppo") for k, v in commands.key_values(args.ppo, "--ppo", "NAME=NUMBER").items()}
+            return commands.cmd_train(_settings(args, TrainConfig), rewards, ppo)
         case "latency":
             return commands.cmd_latency(args, runtime.threads)
         case "validate":
@@ -305,11 +308,11 @@ def dispatch(args: argparse.Namespace) -> int:
     return getattr(commands, f"cmd_{args.command}")(args)
 
 
-def _float(text: str, term: str) -> float:
+def _float(text: str, term: str, option: str = "--reward") -> float:
     try:
         return float(text)
     except ValueError:
-        raise CliError(f"--reward expects TERM=NUMBER, got '{term}={text}'") from None
+        raise CliError(f"{option} expects NAME=NUMBER, got '{term}={text}'") from None
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -355,12 +355,13 @@ def _run_child(command: list[str]) -> int:
         return 130
 
 
-def cmd_train(values: dict, rewards: dict) -> int:
-    from benchmark.train import TrainConfig, reward_weights, train
+def cmd_train(values: dict, rewards: dict, ppo: dict | None = None) -> int:
+    from benchmark.train import TrainConfig, ppo_settings, reward_weights, train
     from robots import load_robot
     from sims import engine
 
-    config = build(TrainConfig, {**values, "rewards": reward_weights(rewards)}, where="bench train")
+    config = build(TrainConfig, {**values, "rewards": reward_weights(rewards), "ppo": ppo_settings(ppo)},
+                   where="bench train")
     load_robot(config.robot)
     for sim in config.sim:
         engine(sim)

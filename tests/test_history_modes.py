@@ -37,12 +37,12 @@ def test_each_mode_gets_the_llamacpp_settings_it_needs(mode, reuse):
 def test_the_drift_report_compares_every_reply_with_a_cold_recompute(capsys):
     from benchmark.llm.latency import measure
 
-    rows = measure("embedded", [5], ["sliding", "shifted"], queries=3, threads=2)
+    rows = measure("embedded", [5], ["sliding", "shifted"], queries=2, threads=2)
     assert "bench: latency cell 2/2 (history 5, shifted, draft ngram)" in capsys.readouterr().err  # not a terminal
     sliding, shifted = rows
     assert (sliding["mode"], shifted["mode"]) == ("sliding", "shifted") and shifted["approximate"]
     for row in rows:
-        assert row["queries"] == 3 and 0.0 <= row["identical_to_cold"] <= 1.0
+        assert row["queries"] == 2 and 0.0 <= row["identical_to_cold"] <= 1.0
         assert row["action_diff_vs_cold"] is None or row["action_diff_vs_cold"] >= 0.0
     assert "outcome_changed" in shifted and "outcome_changed" not in sliding
 
@@ -51,9 +51,9 @@ def test_the_drift_report_compares_every_reply_with_a_cold_recompute(capsys):
 def test_ngram_drafting_is_measured_against_decoding_without_it():
     from benchmark.llm.latency import measure
 
-    drafted, plain = measure("embedded", [5], ["shifted"], queries=3, threads=2, drift=False, drafts=("ngram", "none"))
+    drafted, plain = measure("embedded", [5], ["shifted"], queries=2, threads=2, drift=False, drafts=("ngram", "none"))
     assert (drafted["draft"], plain["draft"]) == ("ngram", "none") and "same_as_no_draft" not in plain
-    assert drafted["same_as_no_draft"] >= 2 / 3  # greedy drafting keeps the reply (batch effects aside)
+    assert drafted["same_as_no_draft"] >= 1 / 2  # greedy drafting keeps the reply (batch effects aside)
 
 
 @pytest.mark.slow
@@ -65,7 +65,7 @@ def test_a_trial_answers_the_same_after_another_trial_as_alone():
 
     from benchmark.cell import KeepPolicy, run_cell
 
-    cell = make_cell({"policy": "llm", "history": 10, "llm_after": 2.0, "duration": 2.3})  # shifted, 3 queries
+    cell = make_cell({"policy": "llm", "history": 10, "llm_after": 2.0, "duration": 2.2})  # shifted, 2 queries
     one_query = dataclasses.replace(cell, duration=2.1)
     runtime = Runtime(threads=2, cache=False)
 
@@ -80,6 +80,6 @@ def test_a_trial_answers_the_same_after_another_trial_as_alone():
             resources.close()
 
     after_another, alone = replies(before=True), replies(before=False)
-    assert len(alone) == 3 and [r.text for r in after_another] == [r.text for r in alone]
+    assert len(alone) == 2 and [r.text for r in after_another] == [r.text for r in alone]
     assert after_another[0].cached_tokens == 0  # nothing of trial 0 was reused
     assert after_another[1].cached_tokens > 0  # within a trial the cache still works

@@ -56,6 +56,8 @@ def test_ctrl_c_on_a_sweep_exits_130_with_no_orphans_and_resumes(tmp_path, signa
         time.sleep(0.3)
     took, err = _finish(proc, children, limit_s)
     assert "interrupted" in err and "run the same command again to resume" in err
+    if signals == 2:
+        return  # resuming is the same after either; once is enough (each resume costs a minute)
     kept = len(ResultStore(results).done_ids())
     resumed = subprocess.run([*BENCH, "sweep", str(SLOW), "--workers", "2", "--results", str(results)],
                              capture_output=True, text=True, timeout=300)

@@ -54,6 +54,7 @@ MISTAKES = [
     (["sweep", "cross_engine", "--only", "controller", "--dry-run"], "--only expects KEY=VALUE, got 'controller'"),
     (["sweep", "cross_engine", "--set", "history", "--dry-run"], "--set expects KEY=VALUE, got 'history'"),
     (["train", "--reward", "speed=2"], "unknown reward term 'speed'"),
+    (["train", "--ppo", "lr=1e-4"], "unknown PPO setting 'lr'"),
     (["train", "--reward", "forward=fast"], "--reward expects TERM=NUMBER, got 'forward=fast'"),
     (["train", "--rough-share", "1.5"], "--rough-share must be between 0 and 1, got 1.5"),
     (["train", "--steps", "-5"], "argument --steps: must be > 0, got -5"),

@@ -240,14 +240,19 @@ def _prompts(probe: ProbeSet, run: ProbeRun):
             yield walk, k, history, walk.observations[k], walk.actions[k]
 
 
+def probe_model(run: ProbeRun, runtime: Runtime = Runtime()):
+    """The model a probe run queries; a sliding window of an approximate mode shifts the KV cache as closed loop does."""
+    approximate = run.window == "slide" and run.llm.approximate
+    return _new_model(dataclasses.replace(run.llm, history_mode="shifted" if approximate else "sliding"), runtime)
+
+
 def answer_items(probe: ProbeSet, run: ProbeRun, runtime: Runtime = Runtime(), model=None,
                  progress: Callable[[int, int], None] | None = None) -> ItemAnswers:
     """Every item answered by the model, through the closed loop's prompt, constraint and parser."""
     s, enc = run.llm, get_encoding(run.llm.encoding)
     owned = model is None
     if owned:
-        approximate = run.window == "slide" and s.approximate
-        model = _new_model(dataclasses.replace(s, history_mode="shifted" if approximate else "sliding"), runtime)
+        model = probe_model(run, runtime)
     total = sum(1 for _ in _prompts(probe, run))
     rows, started, per_robot, last_walk = [], time.perf_counter(), {}, None
     try:
@@ -280,6 +285,64 @@ def answer_items(probe: ProbeSet, run: ProbeRun, runtime: Runtime = Runtime(), m
                        np.array(cols[4], dtype=bool), np.array(cols[5], dtype=bool), np.array(cols[6], dtype=float),
                        np.array(cols[7], dtype=float), np.array(cols[8], dtype=float),
                        wall_s=time.perf_counter() - started)
+
+
+def concat_answers(parts: list[ItemAnswers]) -> ItemAnswers:
+    """Several runs' answers, one after another (wall times add up)."""
+    if not parts:
+        return ItemAnswers([], *(np.zeros(0) for _ in range(2)), np.zeros((0, 12)), np.zeros(0, bool),
+                           np.zeros(0, bool), *(np.zeros(0) for _ in range(3)))
+    return ItemAnswers(sum((a.cells for a in parts), []),
+                       *(np.concatenate([getattr(a, f) for a in parts]) for f in
+                         ("errors", "hold_errors", "joint_errors", "within_step", "parsed", "prompt_tokens",
+                          "completion_tokens", "latency_s")), wall_s=sum(a.wall_s for a in parts))
+
+
+def _answers_json(a: ItemAnswers) -> dict:
+    return {f.name: (getattr(a, f.name).tolist() if isinstance(getattr(a, f.name), np.ndarray) else getattr(a, f.name))
+            for f in dataclasses.fields(ItemAnswers)}
+
+
+def _answers_from(d: dict) -> ItemAnswers:
+    arrays = {f.name: np.array(d[f.name], dtype=bool if f.name in ("within_step", "parsed") else float)
+              for f in dataclasses.fields(ItemAnswers) if f.name not in ("cells", "wall_s")}
+    arrays["joint_errors"] = arrays["joint_errors"].reshape(-1, 12)
+    return ItemAnswers(list(d["cells"]), wall_s=float(d["wall_s"]), **arrays)
+
+
+def answer_walks(probe: ProbeSet, run: ProbeRun, runtime: Runtime = Runtime(), partial: Path | None = None,
+                 progress: Callable[[int, int], None] | None = None) -> ItemAnswers:
+    """`answer_items`, walk by walk: each finished walk is saved to `partial` (JSON), and walks already there
+    are not asked again, so a probe of hours resumes where it was stopped. Every walk starts cold anyway."""
+    walks = [w for w in probe.walks if run.cells is None or w.cell in run.cells]
+    sizes = [sum(1 for _ in _prompts(dataclasses.replace(probe, walks=(w,)), run)) for w in walks]
+    saved = json.loads(partial.read_text()) if partial is not None and partial.is_file() else {}
+    if saved.get("digest") != probe.digest:
+        saved = {"digest": probe.digest, "walks": {}}
+    total, model, parts = sum(sizes), None, []
+    done = sum(size for i, size in enumerate(sizes) if str(i) in saved["walks"])
+    if done:
+        print(f"bench: probe: {done} of {total} items already answered (in {partial}); resuming", file=sys.stderr)
+    try:
+        for i, (walk, size) in enumerate(zip(walks, sizes)):
+            if str(i) in saved["walks"]:
+                parts.append(_answers_from(saved["walks"][str(i)]))
+                continue
+            model = model or probe_model(run, runtime)
+            offset = done
+            answers = answer_items(dataclasses.replace(probe, walks=(walk,)), run, runtime, model=model,
+                                   progress=None if progress is None else lambda k, _: progress(offset + k, total))
+            parts.append(answers)
+            done += size
+            if partial is not None:
+                saved["walks"][str(i)] = _answers_json(answers)
+                partial.parent.mkdir(parents=True, exist_ok=True)
+                partial.with_suffix(".tmp").write_text(json.dumps(saved))
+                partial.with_suffix(".tmp").replace(partial)
+    finally:
+        if model is not None:
+            model.close()
+    return concat_answers(parts)
 
 
 def skill(errors: np.ndarray, hold_errors: np.ndarray, cells: np.ndarray) -> float:

@@ -29,7 +29,7 @@ from benchmark.experiment import Trial
 from benchmark.fingerprint import fingerprint_id, platform_fingerprint
 from benchmark.llm.controller import LLMSettings, is_embedded
 from benchmark.llm.models import check_model_spec
-from benchmark.probe import (DEFAULT_PROBE, ItemAnswers, ProbeRun, answer_items, load_probe_set, print_progress,
+from benchmark.probe import (DEFAULT_PROBE, ItemAnswers, ProbeRun, answer_walks, load_probe_set, print_progress,
                              summarize_answers)
 from benchmark.report import wilson
 from benchmark.settings import SettingError
@@ -106,10 +106,13 @@ def row_id(identity: dict, tier: Tier, suite: Suite, probe_digest: str, cells: t
     return hashlib.sha256(key.encode()).hexdigest()[:16]
 
 
-def _probe_run(tier: Tier, llm: LLMSettings) -> ProbeRun:
+def _probe_run(tier: Tier, llm: LLMSettings, runtime: Runtime) -> tuple[ProbeRun, Runtime]:
+    """The tier's probe run, and the runtime it needs (a tier may fix the decoding, `draft`)."""
     values = dict(tier.probe)
     window, items = values.pop("window", "grow"), values.pop("items", None)
-    return ProbeRun(llm=dataclasses.replace(llm, **values), window=window, items=items)
+    if "draft" in values:
+        runtime = dataclasses.replace(runtime, draft=values.pop("draft"))
+    return ProbeRun(llm=dataclasses.replace(llm, **values), window=window, items=items), runtime
 
 
 def closed_loop_trials(tier: Tier, llm: LLMSettings, cells: tuple[str, ...] | None) -> list[Trial]:
@@ -174,9 +177,10 @@ def evaluate(llm: LLMSettings, tier_name: str = "quick", suite_path: Path | str 
         print(f"bench: {llm.model} {tier_name} tier already scored ({path}); not run again", file=sys.stderr)
         return json.loads(path.read_text())
     started = time.perf_counter()
-    run = _probe_run(tier, llm)
+    run, probe_runtime = _probe_run(tier, llm, runtime)
     print(f"bench: probe {probe.digest}: {llm.model}, {probe.items()} items", file=sys.stderr, flush=True)
-    answers = answer_items(probe, run, runtime, progress=print_progress)
+    partial = Path(store) / "partial" / f"{rid}.json"
+    answers = answer_walks(probe, run, probe_runtime, partial=partial, progress=print_progress)
     row = {"row_id": rid, "suite": suite.name, "suite_version": suite.version, "tier": tier_name, **identity,
            "probe_digest": probe.digest, "probe_settings": {**tier.probe}, "probe": summarize_answers(answers),
            "probe_items": answers_to_json(answers), "cells_filter": list(cells) if cells else None}
@@ -196,6 +200,7 @@ def evaluate(llm: LLMSettings, tier_name: str = "quick", suite_path: Path | str 
     tmp = path.with_suffix(".tmp")
     tmp.write_text(json.dumps(row, indent=1))
     tmp.replace(path)
+    partial.unlink(missing_ok=True)
     return row
 
 

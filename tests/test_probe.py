@@ -13,7 +13,7 @@ import pytest
 from benchmark.llm.controller import LLMSettings
 from benchmark.llm.models import Reply, make_model
 from benchmark.probe import (DEFAULT_PROBE, ProbeError, ProbeRun, ProbeSet, ProbeSetConfig, answer_items,
-                             load_probe_set, make_probe_set, paired_comparison, save_probe_set, skill,
+                             answer_walks, load_probe_set, make_probe_set, paired_comparison, save_probe_set, skill,
                              summarize_answers)
 
 BENCH = [sys.executable, "-m", "benchmark.cli"]
@@ -88,6 +88,34 @@ def test_grow_window_shares_the_prefix_and_slide_keeps_the_length(probe):
     seen.clear()
     answer_items(probe, dataclasses.replace(_run(items=3), window="slide", cells=("a1/flat",)), model=Recorder(0.0))
     assert seen[0][0].count("\nOutput: [") == seen[1][0].count("\nOutput: [") == 10
+
+
+def test_a_stopped_probe_resumes_walk_by_walk_and_asks_nothing_twice(probe, tmp_path, monkeypatch):
+    """A probe of hours (a big model) saves every finished walk; run again, it asks only the rest."""
+    import benchmark.probe as probe_module
+
+    asked = []
+
+    class Counting(NoisyLabels):
+        def complete(self, prompt, sampling, constraint, cold=False):
+            asked.append(prompt)
+            if stop_after is not None and len(asked) > stop_after:
+                raise KeyboardInterrupt
+            return super().complete(prompt, sampling, constraint, cold)
+
+    monkeypatch.setattr(probe_module, "probe_model", lambda run, runtime: Counting(0.3))
+    run, partial = _run(items=2), tmp_path / "partial.json"
+    stop_after = 5  # 2 items a walk: stopped inside the third walk
+    with pytest.raises(KeyboardInterrupt):
+        answer_walks(probe, run, partial=partial)
+    assert len(json.loads(partial.read_text())["walks"]) == 2
+    asked.clear()
+    stop_after = None
+    resumed = answer_walks(probe, run, partial=partial)
+    assert len(asked) == 2 * (len(probe.walks) - 2) and len(resumed.errors) == 2 * len(probe.walks)
+    fresh = answer_walks(probe, run, partial=None)
+    np.testing.assert_array_equal(resumed.hold_errors, fresh.hold_errors)
+    assert resumed.cells == fresh.cells and resumed.joint_errors.shape == (2 * len(probe.walks), 12)
 
 
 def test_a_server_answering_garbage_is_parse_failures_not_a_crash(probe):

@@ -89,5 +89,7 @@ def latency_section(group: pd.DataFrame, out: Path, name: str) -> tuple[list[str
     lines = ["## Latency budget", "",
              f"The largest latency at which a controller still walks with success >= {BUDGET_SUCCESS:g} (at every "
              "smaller latency too), per cell:", "", to_markdown(budgets(curves)), "",
+             "Latencies act in whole control periods: an answer takes effect at the first 10 Hz step at or after "
+             "it arrives, so 0.05 s and 0.1 s both hold each target for one period and give the same trials.", "",
              f"![latency curves](figures/{figure.name})", ""]
     return lines, [figure]

@@ -5,7 +5,10 @@ control at 10 Hz. `realtime` is what a robot lives with: the simulation keeps st
 while a query is in flight and the robot holds its last targets (zero-order hold); an answer takes
 effect at the first control step at or after it arrives, and the next query starts at once, from
 the newest observation. One query is in flight at a time. Latency is the query's measured wall
-time, or a fixed number of seconds (simulated: reproducible for any controller).
+time, or a fixed number of seconds (simulated: reproducible for any controller). With measured
+latency the model first reads the prompt of the step before its takeover, untimed (`warmup_s` in
+the row), as a deployed controller would while the seed policy walks; timed queries then read only
+what is new, and never come from the on-disk reply cache.
 
 Steps are simulated, not slept: a query is answered when it is issued and its answer is held back
 until simulated time has caught up with its latency, which gives the same trajectory as a robot

@@ -25,7 +25,7 @@ import pandas as pd
 from benchmark.experiment import ExperimentError, load_experiment
 from benchmark.fingerprint import describe
 from robots import load_robot
-from benchmark.report_latency import latency_section
+from benchmark.report_latency import latency_section, realtime_section
 
 FORMATS = ("md", "html", "csv")
 METRICS = {  # column in the store -> (heading, aggregation, digits)
@@ -364,6 +364,7 @@ def write_reports(frame: pd.DataFrame, out: Path, fmt: str = "md", force: bool =
         traj = trajectory_figure(group, out / "figures" / f"{name}_trajectories.png")
         figures = [p for p in (bars, traj) if p is not None]
         extra, extra_figures = latency_section(group, out, str(name))
+        extra = extra + realtime_section(group)
         figures += extra_figures
         path = out / f"{name}.{fmt}"
         if fmt == "csv":

@@ -93,3 +93,60 @@ def latency_section(group: pd.DataFrame, out: Path, name: str) -> tuple[list[str
              "it arrives, so 0.05 s and 0.1 s both hold each target for one period and give the same trials.", "",
              f"![latency curves](figures/{figure.name})", ""]
     return lines, [figure]
+
+
+LATENCY_STORE = Path("reports") / "data" / "latency.parquet"
+
+
+def seed_policy_budget(robot: str, terrain: str, store: Path = LATENCY_STORE) -> float | None:
+    """The seed policy's latency budget in a cell, from the committed latency experiment (None: unknown or none)."""
+    if not store.is_file():
+        return None
+    frame = pd.read_parquet(store)
+    frame = frame[(frame["controller"] == "seed_policy") & (frame["robot"] == robot) & (frame["terrain"] == terrain)]
+    if frame.empty:
+        return None
+    budget = None
+    for _, row in latency_curves(frame).iterrows():
+        if row["success"] < BUDGET_SUCCESS:
+            break
+        budget = float(row["latency_s"])
+    return budget
+
+
+def realtime_section(group: pd.DataFrame) -> list[str]:
+    """For trials on the realtime clock with measured latency: when each fell, its latency and real-time
+    factor, and how much faster the model must answer to fit the seed policy's latency budget."""
+    from benchmark.report import to_markdown
+
+    if "latency" not in group or "clock" not in group:
+        return []
+    live = group[(group["clock"] == "realtime") & (group["latency"].astype(str) == "measured")]
+    if live.empty:
+        return []
+    rows = []
+    for _, t in live.iterrows():
+        latencies = np.asarray(t["query_latencies_s"], dtype=float)
+        rows.append({"robot": t["robot"], "terrain": t["terrain"], "seed": int(t["seed"]), "queries": len(latencies),
+                     "mean latency (s)": round(float(latencies.mean()), 2) if len(latencies) else None,
+                     "p95 (s)": round(float(np.percentile(latencies, 95)), 2) if len(latencies) else None,
+                     "real-time factor": round(float(t["control_dt"] / latencies.mean()), 3) if len(latencies) else None,
+                     "steps per target": round(float(t["mean_held_steps"]), 1) if t["mean_held_steps"] == t["mean_held_steps"] else None,
+                     "fell after (s)": "-" if not t["fall_time"] == t["fall_time"] else round(float(t["fall_time"] - t["eval_start"]), 1),
+                     "NWT": round(float(t["nwt"]), 3), "success": bool(t["success"])})
+    table = pd.DataFrame(rows)
+    lines = ["## On the real clock (measured latency)", "",
+             "Each query's own wall time is its latency: the robot holds its last targets until the answer arrives. "
+             "The real-time factor is the control period (0.1 s) over the mean latency (1 would keep up); "
+             "'fell after' counts from the model's takeover.", "", to_markdown(table), ""]
+    for (robot, terrain), g in table.groupby(["robot", "terrain"], sort=False):
+        budget, mean = seed_policy_budget(robot, terrain), float(g["mean latency (s)"].mean())
+        falls = [x for x in g["fell after (s)"] if x != "-"]
+        fell = (f"{len(falls)} of {len(g)} trials fell, after {min(falls):g}-{max(falls):g} s" if falls
+                else f"none of {len(g)} trials fell")
+        if budget:
+            need = f"the seed policy's latency budget here is {budget:g} s, so the model must answer {mean / budget:.0f}x faster"
+        else:
+            need = "the seed policy has no latency budget here in the committed latency experiment"
+        lines += [f"- {robot}/{terrain}: {fell}; mean latency {mean:.2f} s; {need}.", ""]
+    return lines

@@ -72,3 +72,25 @@ def test_a_clock_that_was_never_asked_reports_no_lists():
     clock.reset(np.zeros(12))
     metrics = clock.metrics()
     assert metrics["query_latencies_s"] is None and metrics["held_steps"] is None
+
+
+@pytest.mark.slow
+def test_measured_latency_reads_the_prompt_once_before_the_clock_and_never_uses_the_reply_cache(tmp_path,
+                                                                                               monkeypatch):
+    """The embedded model on the real clock: an untimed read before the takeover, so the first timed query
+    reuses it (reads only what is new); no reply (and its latency) comes from, or goes to, the reply cache."""
+    from benchmark.cell import Resources, Runtime
+    from benchmark.llm.models import CACHE_ENV
+
+    monkeypatch.setenv(CACHE_ENV, str(tmp_path))
+    cell = make_cell({"policy": "llm", "history": 3, "duration": 2.6, "llm_after": 2.0, "clock": "realtime",
+                      "latency": "measured"})
+    kept, resources = KeepPolicy(), Resources(Runtime(threads=2))
+    try:
+        result = run_cell(cell, [0], resources, hooks=[kept])[0]
+    finally:
+        resources.close()
+    queries = kept.policy.queries
+    assert result.policy_metrics["warmup_s"] > 0 and queries, result.policy_metrics
+    assert queries[0].reply.cached_tokens > 0  # the warm-up's prefix, not a cold read
+    assert not any(q.reply.cached for q in queries) and not any(tmp_path.rglob("*.json"))

@@ -152,6 +152,7 @@ class _Trial:
     clock: RealtimeClock | None = None  # realtime cells: the answer in flight and the held targets
     knn_agree: int = 0  # replies within one encoding step of the kNN answer on every value
     violations: int = 0  # replies that break the output constraint (a server that ignored it)
+    warmup_s: float | None = None  # realtime, measured latency: the untimed read before the clock starts
 
 
 class LLMPolicy:
@@ -200,6 +201,8 @@ class LLMPolicy:
         if state.time < s.seed_start - 1e-9:
             action = np.zeros(self.robot.num_joints)
         elif state.time < s.llm_after - 1e-9:
+            if self._warms_up and state.time >= s.llm_after - CONTROL_DT - 1e-9:
+                self._warm_up(llm_obs)
             action = self.seed_action
             t.history.append((llm_obs, action))
         elif t.clock is None:
@@ -214,6 +217,20 @@ class LLMPolicy:
         t.last_action = action
         return action
 
+    @property
+    def _warms_up(self) -> bool:
+        """Realtime with measured latency: the model reads the prompt once before the clock starts."""
+        return self._trial.clock is not None and self._trial.clock.latency is None and \
+            getattr(self.model, "reads_prompt", True)
+
+    def _warm_up(self, llm_obs: np.ndarray) -> None:
+        """Read the prompt of the last step before the takeover, untimed, and drop the reply: a deployed controller
+        reads its description and history while the seed policy walks, so the first timed query, like every
+        later one, reads only what is new (otherwise it would read the whole ~11k-token prompt cold, ~27 s)."""
+        prompt = build_prompt(self.description, self._window(), llm_obs, self.settings.prompt)
+        reply = self.model.complete(prompt, self.settings.sampling, self.constraint, cold=True)
+        self._trial.warmup_s = reply.latency_s
+
     def _query(self, llm_obs: np.ndarray, now: float) -> np.ndarray:
         t = self._trial
         prompt = build_prompt(self.description, self._window(), llm_obs, self.settings.prompt)
@@ -222,7 +239,7 @@ class LLMPolicy:
             self.model.set_reference(self.seed_action, self.encoding)
         # a trial's first query reuses nothing cached: a trial that followed another in one process could reuse
         # its cached prefix, computed in one batch with another prompt, and a greedy near-tie then flipped
-        cold = not t.queries
+        cold = not t.queries and t.warmup_s is None
         if getattr(self.model, "reads_prompt", True):
             with self.reading.reading(prompt, cold):
                 reply = self.model.complete(prompt, self.settings.sampling, self.constraint, cold=cold)
@@ -276,6 +293,7 @@ class LLMPolicy:
         }
         if self._trial.clock is not None:
             out.update(self._trial.clock.metrics())
+            out["warmup_s"] = self._trial.warmup_s
         rt = self.runtime
         if rt.price_in is not None and rt.price_out is not None:
             cached = float(sum(x.reply.cached_tokens for x in q))
@@ -290,8 +308,11 @@ class LLMPolicy:
 
 
 def _new_model(settings: LLMSettings, runtime: Runtime) -> LanguageModel:
+    """The cell's model; a realtime cell with measured latency never reads the reply cache (a cached reply's
+    latency is another run's)."""
+    live = settings.clock == "realtime" and parse_latency(settings.latency) is None
     return make_model(settings.model, url=settings.url, layout=settings.layout, server=settings.server,
-                      cache=runtime.cache,
+                      cache=runtime.cache and not live,
                       threads=runtime.threads, requests_per_minute=runtime.requests_per_minute,
                       cache_reuse=SHIFT_CHUNK if settings.approximate else 0, draft=runtime.draft)
 

@@ -24,6 +24,15 @@ class ResultStore:
     def done_ids(self) -> set[str]:
         return {p.stem for p in self.trials_dir.glob("*.parquet")}
 
+    def columns(self, names: list[str]) -> pd.DataFrame:
+        """Only these columns of every stored trial (missing ones as None): cheap on a big store."""
+        rows = []
+        for f in sorted(self.trials_dir.glob("*.parquet")):
+            schema = pq.read_schema(f).names
+            table = pq.read_table(f, columns=[n for n in names if n in schema]).to_pylist()[0]
+            rows.append({n: table.get(n) for n in names})
+        return pd.DataFrame(rows, columns=names)
+
     def write(self, row: dict) -> Path:
         """Store one trial atomically; nested values that are not numeric arrays go in as JSON text."""
         self.trials_dir.mkdir(parents=True, exist_ok=True)

@@ -79,8 +79,7 @@ class _Worker:
         cell, trajectory = trial.cell, _Trajectory()
         result = run_cell(cell, [trial.seed], self.resources, hooks=[trajectory])[0]
         robot = load_robot(cell.robot)
-        weights = robot.folder / "policy.npz"  # the seed policy (rl, and the LLM's history)
-        seed_policy = hashlib.sha256(weights.read_bytes()).hexdigest()[:12] if weights.is_file() else None
+        seed_policy = shipped_seed_policy_sha256(robot.name)  # the seed policy (rl, and the LLM's history)
         return {"experiment": trial.experiment, "trial_id": trial.id, "cell_id": trial.cell_id,
                 "cell_index": trial.cell_index, **cell.params(), **trial.labels, "axes": json.dumps(list(trial.labels)),
                 "eval_start": cell.eval_start, **result.to_dict(), "control_dt": PhysicsConfig().control_dt,
@@ -260,6 +259,33 @@ class SweepOutcome:
     wall_s: float
 
 
+def shipped_seed_policy_sha256(robot: str) -> str | None:
+    """The first 12 hex digits of a robot's shipped policy.npz (what rows record as seed_policy_sha256)."""
+    weights = load_robot(robot).folder / "policy.npz"
+    return hashlib.sha256(weights.read_bytes()).hexdigest()[:12] if weights.is_file() else None
+
+
+def stale_trials(store: ResultStore) -> set[str]:
+    """Stored trials that ran a seed policy other than the robot's shipped one: a sweep runs them again (and
+    says so), so no store mixes two seed policies silently."""
+    if not store.trials_dir.is_dir():
+        return set()
+    stored = store.columns(["trial_id", "robot", "seed_policy_sha256"]).dropna()
+    current = {}
+    for robot in stored["robot"].unique():
+        try:
+            current[robot] = shipped_seed_policy_sha256(robot)
+        except Exception:  # noqa: BLE001  a robot folder that is gone: nothing to compare with, keep its trials
+            current[robot] = None
+    stale = stored[[current[robot] is not None and sha != current[robot]
+                    for robot, sha in zip(stored["robot"], stored["seed_policy_sha256"])]]
+    for robot, g in stale.groupby("robot"):
+        print(f"bench: {len(g)} stored trial(s) of {robot} ran another seed policy "
+              f"({', '.join(sorted(g['seed_policy_sha256'].unique()))}, now {current[robot]}): they run again",
+              file=sys.stderr)
+    return set(stale["trial_id"])
+
+
 def run_sweep(trials: list[Trial], store: ResultStore, workers: int = 1, executor: str = "local",
               address: str | None = None, requests_per_minute: float | None = None,
               threads: int | None = None, command: str | None = None, concurrency: int = 1) -> SweepOutcome:
@@ -269,7 +295,7 @@ def run_sweep(trials: list[Trial], store: ResultStore, workers: int = 1, executo
         raise ValueError(f"unknown executor '{executor}'; valid: {', '.join(EXECUTORS)}")
     if concurrency > 1 and (workers > 1 or executor != "local"):
         raise ValueError("--concurrency runs trials as threads in one local process: use it with --workers 1")
-    done = store.done_ids()
+    done = store.done_ids() - stale_trials(store)
     todo = [t for t in trials if t.id not in done]
     runtime = Runtime(threads=threads or max(1, (os.cpu_count() or 1) // workers),
                       requests_per_minute=None if requests_per_minute is None else requests_per_minute / workers)

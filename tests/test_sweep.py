@@ -280,3 +280,24 @@ def test_axis_values_read_as_written_in_tables():
     store = pd.read_parquet(Path(__file__).parents[1] / "reports" / "data" / "history.parquet")
     table = summary_table(store, spread=False)
     assert set(table["history"]) == {"-", "0", "10", "30", "50"}
+
+
+def test_trials_of_another_seed_policy_run_again_and_say_so(tmp_path, capsys):
+    """A store's trials record the seed policy they ran; after a new policy ships, a sweep reruns them."""
+    import dataclasses
+
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    trials = [t for t in load_experiment(TINY).trials() if t.seed == 0][:1]
+    trials = [dataclasses.replace(t, cell=dataclasses.replace(t.cell, duration=0.5)) for t in trials]
+    store = ResultStore(tmp_path / "store")
+    assert run_sweep(trials, store).ran == 1
+    assert run_sweep(trials, store).ran == 0  # same policy: kept
+    path = next(store.trials_dir.glob("*.parquet"))
+    row = pq.read_table(path).to_pylist()[0]
+    pq.write_table(pa.Table.from_pylist([{**row, "seed_policy_sha256": "0123456789ab"}]), path)
+    capsys.readouterr()
+    assert run_sweep(trials, store).ran == 1
+    assert "1 stored trial(s) of a1 ran another seed policy (0123456789ab, now" in capsys.readouterr().err
+    assert len(load_results(store.root)) == 1

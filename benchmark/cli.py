@@ -291,7 +291,7 @@ def dispatch(args: argparse.Namespace) -> int:
             return commands.cmd_sweep(args, args.overrides, args.only)
         case "train":
             rewards = {k: _float(v, k) for k, v in commands.key_values(args.reward, "--reward", "TERM=NUMBER").items()}
-            ppo = {k: _float(v, k, "--ppo") for k, v in commands.key_values(args.ppo, "--ppo", "NAME=NUMBER").items()}
+            ppo = {k: _float(v, k, "--ppo", "NAME") for k, v in commands.key_values(args.ppo, "--ppo", "NAME=NUMBER").items()}
             return commands.cmd_train(_settings(args, TrainConfig), rewards, ppo)
         case "latency":
             return commands.cmd_latency(args, runtime.threads)
@@ -308,11 +308,11 @@ def dispatch(args: argparse.Namespace) -> int:
     return getattr(commands, f"cmd_{args.command}")(args)
 
 
-def _float(text: str, term: str, option: str = "--reward") -> float:
+def _float(text: str, term: str, option: str = "--reward", key: str = "TERM") -> float:
     try:
         return float(text)
     except ValueError:
-        raise CliError(f"{option} expects NAME=NUMBER, got '{term}={text}'") from None
+        raise CliError(f"{option} expects {key}=NUMBER, got '{term}={text}'") from None
 
 
 def main(argv: list[str] | None = None) -> int:

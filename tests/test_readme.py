@@ -87,7 +87,8 @@ def workdir(tmp_path_factory):
 
 
 SLOW = ("bench latency", "bench run --duration 2.5", "bench probe --llm embedded", "bench run --sim newton",
-        "bench perf --sim newton", "bench train")  # over 30 s on 2 cores: `pytest -m "not slow"` leaves them out
+        "bench perf --sim newton", "bench train",  # over 30 s on 2 cores: `pytest -m "not slow"` leaves them out
+        "bench run --policy rl --policy-file")  # evaluates what the slow `bench train` recipe wrote
 RUNNABLE = [pytest.param(c, marks=[pytest.mark.slow] if c.startswith(SLOW) else [], id=c[6:50])
             for c in readme_commands() if isinstance(ADAPT.get(c), tuple)]
 

@@ -19,7 +19,7 @@ from benchmark.probe import paired_comparison
 from benchmark.report import to_markdown
 from benchmark.scorecard import DEFAULT_STORE, answers_from_json, load_rows
 
-REFERENCE_ORDER = ("oracle", "knn", "replay", "hold")
+REFERENCE_ORDER = ("oracle", "knn", "replay", "hold", "default")
 
 
 def _label(row: dict) -> str:

@@ -202,3 +202,16 @@ def test_a_ladder_file_with_the_wrong_sha256_is_refused_naming_the_expected_one(
     (tmp_path / "tiny.gguf").write_bytes(b"GGUF")
     with pytest.raises(ladder.LadderError, match="truncated"):
         ladder.resolve("tiny")
+
+
+def test_the_default_pose_reference_answers_action_zero_in_the_prompts_encoding(probe):
+    from benchmark.llm.encodings import get_encoding
+
+    run = dataclasses.replace(_run(items=2), cells=("a1/flat",))
+    answers = answer_items(probe, run, model=make_model("default", cache=False))
+    enc = get_encoding(run.llm.encoding)
+    walk = probe.walks[0]
+    labels = [enc.quantize(a) for a in walk.actions[walk.first_item:walk.first_item + 2]]
+    expected = [np.abs(enc.quantize(np.zeros(12)) - label).mean() for label in labels]
+    np.testing.assert_allclose(answers.errors[:2], expected)
+    assert answers.parsed.all()

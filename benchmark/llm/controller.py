@@ -35,7 +35,7 @@ HISTORY_MODES = ("auto", "sliding", "block", "shifted")
 APPROXIMATE_MODES = ("shifted",)
 SHIFT_CHUNK = 64  # tokens: llama.cpp's n_cache_reuse, the smallest cached chunk it moves instead of recomputing
 CONTROL_DT = PhysicsConfig().control_dt  # s, the 10 Hz control period every engine runs
-REFERENCE_KINDS = ("hold", "knn", "replay", "oracle")
+REFERENCE_KINDS = ("hold", "default", "knn", "replay", "oracle")
 
 
 def is_embedded(model: str) -> bool:

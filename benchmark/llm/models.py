@@ -345,11 +345,12 @@ MODELS: dict[str, str] = {
     "embedded": "benchmark.llm.models:EmbeddedModel",
     "openai": "benchmark.llm.models:OpenAIModel",
     "hold": "benchmark.llm.reference:HoldModel",
+    "default": "benchmark.llm.reference:DefaultPoseModel",
     "knn": "benchmark.llm.reference:KnnModel",
     "replay": "benchmark.llm.reference:ReplayModel",
     "oracle": "benchmark.llm.reference:OracleModel",
 }
-MODEL_FORMS = ("embedded", "embedded:PATH.gguf", "openai:MODEL", "hold", "knn", "replay", "oracle",
+MODEL_FORMS = ("embedded", "embedded:PATH.gguf", "openai:MODEL", "hold", "default", "knn", "replay", "oracle",
                "a ladder name (bench models)")
 
 

@@ -2,6 +2,7 @@
 through the same reply -> parse -> decode path, so they stand as rows beside real models.
 
     hold     repeats the last action in the prompt's history (a model that freezes)
+    default  the default pose (normalized action 0), whatever the prompt says
     knn      the output paired with the history input nearest to the current input
     replay   continues the newest gait cycle in the history's outputs, open loop
     oracle   the seed policy's action for the current state, written in the encoding (the ceiling)
@@ -139,3 +140,13 @@ class OracleModel(_TextModel):
 
     def reply_to(self, prompt: str) -> str:
         return self.answer
+
+
+class DefaultPoseModel(OracleModel):
+    """Always the default pose (normalized action 0) in the prompt's encoding: a model that answers without
+    reading anything. It takes the encoding through the same hand-over as `oracle`, never the action."""
+
+    kind = "default"
+
+    def set_reference(self, seed_action: np.ndarray, encoding) -> None:
+        self.answer = encoding.encode(np.zeros_like(seed_action))

@@ -34,6 +34,35 @@ def _closed(row: dict) -> tuple[float | None, float | None, int]:
             int(sum(c["trials"] for c in cells.values())))
 
 
+CELL_ORDER = ("a1/flat", "a1/rough", "anymal/flat", "anymal/rough")
+
+
+def best_rows(rows: list[dict]) -> list[dict]:
+    """One row per model and probe: the full tier's where it ran (its probe is the quick tier's), else the quick."""
+    best: dict = {}
+    for r in rows:
+        key = (_label(r), r.get("file_sha256"), r.get("server_model"), r["probe_digest"], str(r["probe_settings"]))
+        if key not in best or (r.get("closed_loop") and not best[key].get("closed_loop")):
+            best[key] = r
+    return list(best.values())
+
+
+def _cell_key(name: str) -> tuple:
+    return (CELL_ORDER.index(name) if name in CELL_ORDER else len(CELL_ORDER), name)
+
+
+def rank_correlation(rows: list[dict]) -> tuple[float | None, int]:
+    """Spearman's rank correlation of probe skill with closed-loop NWT over (row, cell) points, and their count."""
+    import pandas as pd
+
+    points = [(r["probe"]["cells"][cell]["skill"], c["nwt"]) for r in rows
+              for cell, c in (r.get("closed_loop") or {}).items() if cell in r["probe"]["cells"]]
+    if len(points) < 3:
+        return None, len(points)
+    x, y = pd.Series([p[0] for p in points]), pd.Series([p[1] for p in points])
+    return float(x.rank().corr(y.rank())), len(points)
+
+
 def headline(rows: list[dict]):
     import pandas as pd
 
@@ -62,14 +91,18 @@ def per_cell(rows: list[dict]):
     out = []
     for r in rows:
         line = {"model": _label(r), "tier": r["tier"]}
-        for cell, c in r["probe"]["cells"].items():
+        for cell, c in sorted(r["probe"]["cells"].items(), key=lambda kv: _cell_key(kv[0])):
             line[f"skill {cell}"] = round(c["skill"], 3)
-        for cell, c in (r.get("closed_loop") or {}).items():
+        for cell, c in sorted((r.get("closed_loop") or {}).items(), key=lambda kv: _cell_key(kv[0])):
             line[f"NWT {cell}"] = f"{c['nwt']:.2f} ± {c['nwt_half_ci']:.2f}"
             lo, hi = c["success_ci"]
             line[f"success {cell}"] = f"{c['success']:.1f} [{lo:.2f}, {hi:.2f}]"
         out.append(line)
-    return pd.DataFrame(out).fillna("-")
+    frame = pd.DataFrame(out)
+    skills = [c for c in frame.columns if c.startswith("skill ")]
+    closed = sorted([c for c in frame.columns if c.startswith(("NWT ", "success "))],
+                    key=lambda c: (_cell_key(c.split(" ", 1)[1]), not c.startswith("NWT")))
+    return frame[["model", "tier", *skills, *closed]].fillna("-")
 
 
 def comparisons(rows: list[dict]):
@@ -143,18 +176,30 @@ def write_leaderboard(store: Path | str = DEFAULT_STORE, out: Path | str = "repo
              "freezing. It measures imitation, not control. **Closed loop** is the paper's protocol (full tier): "
              "NWT and success over the LLM's 10 s. Intervals are 95% (probe: bootstrap over items; success: Wilson).",
              ""]
-    table = headline(rows)
+    shown = best_rows(rows)
+    table = headline(shown)
     if table.empty:
         lines += ["No scorecards yet: `bench eval --llm knn`."]
     else:
-        lines += [to_markdown(table), "", "## Per cell", "", to_markdown(per_cell(rows)), ""]
+        order = {name: i for i, name in enumerate(table["model"])}
+        shown.sort(key=lambda r: order.get(_label(r), len(order)))
+        lines += [to_markdown(table), "", "A model's quick-tier row is left out here where its full tier ran (the "
+                  "same probe); the interactive page lists every row.", "", "## Per cell", "",
+                  to_markdown(per_cell(shown)), ""]
         for comparison in comparisons(rows):
             lines += ["## Paired comparison", "", "The probability, over 2000 bootstrap resamples of the same probe "
                       "items, that the row's skill beats the column's; near 0.5 the difference is not real, above "
                       "0.975 or below 0.025 it is.", "", to_markdown(comparison), ""]
-        figure = scatter(rows, out / "figures" / "leaderboard_probe_vs_closed_loop.png")
+        figure = scatter(shown, out / "figures" / "leaderboard_probe_vs_closed_loop.png")
         if figure is not None:
-            lines += ["## Probe skill against closed-loop NWT", "", f"![probe vs closed loop](figures/{figure.name})", ""]
+            rho, n = rank_correlation(shown)
+            models = sorted({_label(r) for r in shown if r.get("closed_loop")})
+            verdict = (f"Spearman's rank correlation of probe skill with closed-loop NWT over the {n} (model, cell) "
+                       f"points that have both: {rho:.2f}." if rho is not None else "Too few points for a correlation.")
+            lines += ["## Probe skill against closed-loop NWT", "", f"{verdict} The points come from "
+                      f"{len(models)} model(s) ({', '.join(models)}); where only reference controllers have closed-loop "
+                      "rows, it says how the probe orders controllers that walk or freeze, not yet how it orders LLMs.",
+                      "", f"![probe vs closed loop](figures/{figure.name})", ""]
         made = sorted({(r["fingerprint_id"], r["fingerprint"]["cpu"]) for r in rows})
         lines += ["Made on: " + "; ".join(f"`{f}` {cpu}" for f, cpu in made) + ".", "",
                   "Commands:", "", *[f"    {r['command']}" for r in rows], ""]

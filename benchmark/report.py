@@ -260,7 +260,8 @@ def trajectory_figure(frame: pd.DataFrame, path: Path) -> Path | None:
                  & (frame["seed"] == first["seed"])]
     llm = same[same["policy"] == "llm"]
     if not llm.empty:
-        best_cell = frame[frame["policy"] == "llm"].groupby("cell_id")["nwt"].mean().idxmax()
+        llm_cells = frame[(frame["policy"] == "llm") & frame["cell_id"].isin(llm["cell_id"])]
+        best_cell = llm_cells.groupby("cell_id")["nwt"].mean().idxmax()  # among the cells this seed's trial ran
         best = llm[llm["cell_id"] == best_cell]
         chosen = pd.concat([same[(same["policy"] != "llm") & (same["sim"] == best["sim"].iloc[0])], best])
     else:

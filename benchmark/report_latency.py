@@ -126,24 +126,31 @@ def realtime_section(group: pd.DataFrame) -> list[str]:
         return []
     rows = []
     for _, t in live.iterrows():
+        fall = t.get("fall_time")
+        held = t.get("mean_held_steps")
         latencies = np.asarray(t["query_latencies_s"], dtype=float)
         rows.append({"robot": t["robot"], "terrain": t["terrain"], "seed": int(t["seed"]), "queries": len(latencies),
                      "mean latency (s)": round(float(latencies.mean()), 2) if len(latencies) else None,
                      "p95 (s)": round(float(np.percentile(latencies, 95)), 2) if len(latencies) else None,
                      "real-time factor": round(float(t["control_dt"] / latencies.mean()), 3) if len(latencies) else None,
-                     "steps per target": round(float(t["mean_held_steps"]), 1) if t["mean_held_steps"] == t["mean_held_steps"] else None,
-                     "fell after (s)": "-" if not t["fall_time"] == t["fall_time"] else round(float(t["fall_time"] - t["eval_start"]), 1),
-                     "NWT": round(float(t["nwt"]), 3), "success": bool(t["success"])})
+                     "steps per target": round(float(held), 1) if held is not None and held == held else None,
+                     "fell after (s)": "-" if fall is None or fall != fall else round(float(fall - t["eval_start"]), 1),
+                     "NWT": round(float(t["nwt"]), 3), "success": bool(t["success"]),
+                     "load (1 min)": round(float(t["load_1m"]), 2) if t.get("load_1m") is not None else None})
     table = pd.DataFrame(rows)
     lines = ["## On the real clock (measured latency)", "",
              "Each query's own wall time is its latency: the robot holds its last targets until the answer arrives. "
              "The real-time factor is the control period (0.1 s) over the mean latency (1 would keep up); "
-             "'fell after' counts from the model's takeover.", "", to_markdown(table), ""]
+             "'fell after' counts from the model's takeover. Load is the machine's 1-minute load average as the "
+             "trial ended (2 cores here: above ~2, other work shared them and latencies are inflated).", "",
+             to_markdown(table.dropna(axis=1, how="all")), ""]
     for (robot, terrain), g in table.groupby(["robot", "terrain"], sort=False):
         budget, mean = seed_policy_budget(robot, terrain), float(g["mean latency (s)"].mean())
         falls = [x for x in g["fell after (s)"] if x != "-"]
         fell = (f"{len(falls)} of {len(g)} trials fell, after {min(falls):g}-{max(falls):g} s" if falls
                 else f"none of {len(g)} trials fell")
+        fell += f", mean NWT {g['NWT'].mean():.2f}" + (" (it stopped walking, holding its targets)"
+                                                        if g["NWT"].max() == 0 else "")
         if budget:
             need = f"the seed policy's latency budget here is {budget:g} s, so the model must answer {mean / budget:.0f}x faster"
         else:

@@ -84,6 +84,7 @@ class _Worker:
                 "cell_index": trial.cell_index, **cell.params(), **trial.labels, "axes": json.dumps(list(trial.labels)),
                 "eval_start": cell.eval_start, **result.to_dict(), "control_dt": PhysicsConfig().control_dt,
                 "seed_policy_sha256": seed_policy, "traj_joint_pos": trajectory.joint_pos,
+                "load_1m": os.getloadavg()[0],  # the machine's load as the trial ended: measured latencies need it
                 "traj_joint_target": trajectory.joint_target, "worker": f"{socket.gethostname()}:{os.getpid()}"}
 
     def close(self) -> None:

@@ -16,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import os
 import sys
 import time
 import tomllib
@@ -195,7 +196,8 @@ def evaluate(llm: LLMSettings, tier_name: str = "quick", suite_path: Path | str 
     meta = run_metadata(command)
     row.update(wall_s=round(time.perf_counter() - started, 1), command=command, versions=json.loads(meta["versions"]),
                git_commit=meta["git_commit"], fingerprint_id=fingerprint_id(), fingerprint=platform_fingerprint(),
-               made_at=time.strftime("%Y-%m-%d %H:%M:%S"))
+               made_at=time.strftime("%Y-%m-%d %H:%M:%S"),
+               load_1m=os.getloadavg()[0])  # above the core count, other work shared the machine: times inflated
     rows.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(".tmp")
     tmp.write_text(json.dumps(row, indent=1))

@@ -228,7 +228,9 @@ class LLMPolicy:
         reads its description and history while the seed policy walks, so the first timed query, like every
         later one, reads only what is new (otherwise it would read the whole ~11k-token prompt cold, ~27 s)."""
         prompt = build_prompt(self.description, self._window(), llm_obs, self.settings.prompt)
-        reply = self.model.complete(prompt, self.settings.sampling, self.constraint, cold=True)
+        with self.reading.reading(prompt, True):
+            reply = self.model.complete(prompt, self.settings.sampling, self.constraint, cold=True)
+        self.reading.learn(prompt, reply.prompt_tokens, reply.prompt_tokens - reply.cached_tokens, reply.latency_s)
         self._trial.warmup_s = reply.latency_s
 
     def _query(self, llm_obs: np.ndarray, now: float) -> np.ndarray:

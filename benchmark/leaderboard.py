@@ -166,7 +166,7 @@ def write_leaderboard(store: Path | str = DEFAULT_STORE, out: Path | str = "repo
     if rows:
         page = out / "leaderboard.html"
         page.parent.mkdir(parents=True, exist_ok=True)
-        page.write_text(render(rows, command))
+        page.write_text(render(best_rows(rows), command))
     lines = ["# Leaderboard", "", f"Regenerate: `{command}` (from the scorecard rows in `{store}`; each row says the "
              "command that made it). " + ("The [interactive page](leaderboard.html) sorts by any column and holds "
                                           "every row's settings; it needs no network." if page else ""), "",
@@ -183,8 +183,8 @@ def write_leaderboard(store: Path | str = DEFAULT_STORE, out: Path | str = "repo
     else:
         order = {name: i for i, name in enumerate(table["model"])}
         shown.sort(key=lambda r: order.get(_label(r), len(order)))
-        lines += [to_markdown(table), "", "A model's quick-tier row is left out here where its full tier ran (the "
-                  "same probe); the interactive page lists every row.", "", "## Per cell", "",
+        lines += [to_markdown(table), "", "A model's quick-tier row is left out here and on the page where its full "
+                  "tier ran (the same probe); the store keeps both.", "", "## Per cell", "",
                   to_markdown(per_cell(shown)), ""]
         for comparison in comparisons(rows):
             lines += ["## Paired comparison", "", "The probability, over 2000 bootstrap resamples of the same probe "

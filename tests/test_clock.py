@@ -94,3 +94,17 @@ def test_measured_latency_reads_the_prompt_once_before_the_clock_and_never_uses_
     assert result.policy_metrics["warmup_s"] > 0 and queries, result.policy_metrics
     assert queries[0].reply.cached_tokens > 0  # the warm-up's prefix, not a cold read
     assert not any(q.reply.cached for q in queries) and not any(tmp_path.rglob("*.json"))
+
+
+def test_the_real_clock_section_reads_the_committed_realtime_store():
+    """The committed embedded-model rows on the real clock: the report says when, how fast, and how far off."""
+    from pathlib import Path
+
+    import pandas as pd
+
+    from benchmark.report_latency import realtime_section
+
+    frame = pd.read_parquet(Path(__file__).parents[1] / "reports" / "data" / "realtime.parquet")
+    text = "\n".join(realtime_section(frame))
+    assert "## On the real clock (measured latency)" in text and "real-time factor" in text
+    assert text.count("| a1 | flat |") == len(frame) and "faster" in text

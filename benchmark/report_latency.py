@@ -33,15 +33,21 @@ def latency_curves(group: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows).sort_values(["controller", "robot", "terrain", "latency_s"]).reset_index(drop=True)
 
 
+def budget_of(curve: pd.DataFrame) -> float | None:
+    """One controller's budget in one cell, from its curve sorted by latency (None: not even the smallest)."""
+    budget = None
+    for latency, success in zip(curve["latency_s"], curve["success"]):
+        if success < BUDGET_SUCCESS:
+            break
+        budget = float(latency)
+    return budget
+
+
 def budgets(curves: pd.DataFrame) -> pd.DataFrame:
     """The latency budget per controller (rows) and cell (columns)."""
     out = {}
     for (controller, robot, terrain), g in curves.groupby(["controller", "robot", "terrain"], sort=False):
-        budget = None
-        for latency, success in zip(g["latency_s"], g["success"]):
-            if success < BUDGET_SUCCESS:
-                break
-            budget = latency
+        budget = budget_of(g)
         out.setdefault(controller, {})[f"{robot}/{terrain}"] = (
             f"{budget:g} s" if budget is not None else f"none (< {BUDGET_SUCCESS:g} at {g['latency_s'].min():g} s)")
     return pd.DataFrame(out).T.rename_axis("controller").reset_index()
@@ -104,14 +110,7 @@ def seed_policy_budget(robot: str, terrain: str, store: Path = LATENCY_STORE) ->
         return None
     frame = pd.read_parquet(store)
     frame = frame[(frame["controller"] == "seed_policy") & (frame["robot"] == robot) & (frame["terrain"] == terrain)]
-    if frame.empty:
-        return None
-    budget = None
-    for _, row in latency_curves(frame).iterrows():
-        if row["success"] < BUDGET_SUCCESS:
-            break
-        budget = float(row["latency_s"])
-    return budget
+    return None if frame.empty else budget_of(latency_curves(frame))
 
 
 def realtime_section(group: pd.DataFrame) -> list[str]:

@@ -78,8 +78,7 @@ class _Worker:
     def _row(self, trial: Trial) -> dict:
         cell, trajectory = trial.cell, _Trajectory()
         result = run_cell(cell, [trial.seed], self.resources, hooks=[trajectory])[0]
-        robot = load_robot(cell.robot)
-        seed_policy = shipped_seed_policy_sha256(robot.name)  # the seed policy (rl, and the LLM's history)
+        seed_policy = shipped_seed_policy_sha256(cell.robot)  # the seed policy (rl, and the LLM's history)
         return {"experiment": trial.experiment, "trial_id": trial.id, "cell_id": trial.cell_id,
                 "cell_index": trial.cell_index, **cell.params(), **trial.labels, "axes": json.dumps(list(trial.labels)),
                 "eval_start": cell.eval_start, **result.to_dict(), "control_dt": PhysicsConfig().control_dt,

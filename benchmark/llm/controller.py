@@ -226,12 +226,20 @@ class LLMPolicy:
     def _warm_up(self, llm_obs: np.ndarray) -> None:
         """Read the prompt of the last step before the takeover, untimed, and drop the reply: a deployed controller
         reads its description and history while the seed policy walks, so the first timed query, like every
-        later one, reads only what is new (otherwise it would read the whole ~11k-token prompt cold, ~27 s)."""
+        later one, reads only what is new (otherwise it would read the whole ~10k-token prompt cold)."""
         prompt = build_prompt(self.description, self._window(), llm_obs, self.settings.prompt)
-        with self.reading.reading(prompt, True):
-            reply = self.model.complete(prompt, self.settings.sampling, self.constraint, cold=True)
-        self.reading.learn(prompt, reply.prompt_tokens, reply.prompt_tokens - reply.cached_tokens, reply.latency_s)
-        self._trial.warmup_s = reply.latency_s
+        self._trial.warmup_s = self._complete(prompt, cold=True).latency_s
+
+    def _complete(self, prompt: str, cold: bool) -> Reply:
+        """The model's reply; a model that reads its prompt reports long reads and teaches the reading rate."""
+        if not getattr(self.model, "reads_prompt", True):
+            return self.model.complete(prompt, self.settings.sampling, self.constraint, cold=cold)
+        with self.reading.reading(prompt, cold):
+            reply = self.model.complete(prompt, self.settings.sampling, self.constraint, cold=cold)
+        if not reply.cached:
+            self.reading.learn(prompt, reply.prompt_tokens, reply.prompt_tokens - reply.cached_tokens,
+                               reply.latency_s)
+        return reply
 
     def _query(self, llm_obs: np.ndarray, now: float) -> np.ndarray:
         t = self._trial
@@ -241,15 +249,7 @@ class LLMPolicy:
             self.model.set_reference(self.seed_action, self.encoding)
         # a trial's first query reuses nothing cached: a trial that followed another in one process could reuse
         # its cached prefix, computed in one batch with another prompt, and a greedy near-tie then flipped
-        cold = not t.queries and t.warmup_s is None
-        if getattr(self.model, "reads_prompt", True):
-            with self.reading.reading(prompt, cold):
-                reply = self.model.complete(prompt, self.settings.sampling, self.constraint, cold=cold)
-            if not reply.cached:
-                self.reading.learn(prompt, reply.prompt_tokens, reply.prompt_tokens - reply.cached_tokens,
-                                   reply.latency_s)
-        else:
-            reply = self.model.complete(prompt, self.settings.sampling, self.constraint, cold=cold)
+        reply = self._complete(prompt, cold=not t.queries and t.warmup_s is None)
         action = parse_reply(reply.text, self.encoding, self.robot.num_joints)
         if getattr(self.model, "obeys_constraint", True) and self.constraint.violated_by(reply.text):
             t.violations += 1

@@ -17,7 +17,7 @@ rigid) and tau_g the gravity torque there, both from the URDF through MuJoCo; it
 20 kHz with the PD torque held over each 5 ms step, as the engines apply it. Its linear part is a
 second-order system, wn = sqrt(Kp / (I + armature)), zeta = (Kd + damping) / (2 sqrt(Kp (I + armature))).
 A second reference drops the armature, to show what it changes. Bullet has no joint armature; PyBullet
-emulates it with link inertia (`sims.pybullet.add_armature`) and is compared with the full reference.
+emulates it with geared rotors (`sims.pybullet.with_rotors`) and is compared with the full reference.
 """
 
 from __future__ import annotations
@@ -240,8 +240,10 @@ def write_report(table: pd.DataFrame, curves: dict, config: ValidateConfig, comm
              f"{config.step_rad} rad step and a {config.sine_rad} rad, {config.sine_hz} Hz sinusoid on top of the default "
              "pose, tracked by the 200 Hz PD law with the robot's armature, damping and Coulomb friction "
              "(`robot.toml`). The reference integrates that joint alone (`benchmark/validate.py`). Bullet has no "
-             "joint armature: PyBullet emulates it by adding it to the child link's inertia about the joint axis "
-             "(an approximation: that inertia also loads the joints above), and is compared with the same reference.",
+             "joint armature: PyBullet emulates it with a rotor on each joint's parent link, geared to the joint "
+             "(`ROTOR_GEAR` in `sims/pybullet.py`) with inertia armature / gear^2 (an approximation: the rotor also "
+             "turns with its parent, coupling armature / gear into the joint above), and is compared with the same "
+             "reference.",
              ""]
     for robot in config.robot:
         name = load_robot(robot).name

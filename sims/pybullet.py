@@ -4,10 +4,14 @@ Torque control with the PD law computed in numpy at every 200 Hz substep, inerti
 URDF, self-collision off. Joint dynamics: viscous damping is added to the numpy law; Coulomb
 friction is each joint's velocity motor, held at zero velocity with the friction torque as its
 maximum force (it acts beside torque control). Bullet has no joint armature (reflected rotor
-inertia); it is emulated by adding the armature to the child link's inertia about the joint axis
-(`add_armature`). APPROXIMATION: a real rotor spins at the joint's rate only, while this extra
-inertia turns with the link, so it also loads the joints above it (a thigh carries its calf's
-armature too); `bench validate` measures how close the step responses come.
+inertia); it is emulated by a rotor (`with_rotors`): a small disk on each joint's parent link, turning
+about the joint's axis, geared to the joint by a Bullet gear constraint at ROTOR_GEAR times the
+joint's rate, with inertia armature / ROTOR_GEAR^2, so the joint feels the whole armature.
+APPROXIMATION: the rotor also turns with its parent link, which couples the armature into the joints
+above it by armature / ROTOR_GEAR (exact only as the gear grows; an ideal armature couples nothing),
+and the gear constraint is solved by Bullet's iterative solver. Bullet's gear constraint assumes a free
+base (it indexes degrees of freedom past the base's six), so a hung robot keeps a free base, pinned to
+the world by a fixed constraint.
 PyBullet reports the base pose and velocity at the base's centre of mass; they are moved
 to the base link origin so every engine reports the same point.
 """
@@ -15,6 +19,9 @@ to the base link origin so every engine reports the same point.
 from __future__ import annotations
 
 import math
+import tempfile
+from pathlib import Path
+from xml.etree import ElementTree
 
 import numpy as np
 
@@ -34,21 +41,47 @@ def _xyzw_to_wxyz(q) -> np.ndarray:
     return np.array([q[3], q[0], q[1], q[2]])
 
 
-def add_armature(p: BulletClient, body: int, joints: list[int], armature: np.ndarray) -> None:
-    """Emulate each joint's armature (kg m^2) with extra inertia of its child link about the joint axis.
+# The rotor turns this many times faster than its joint. Real reductions are larger (A1 about 9:1, ANYdrive
+# 50:1); in `bench validate` the step responses of 10 and 20 agreed within 0.3 ms, and 1 (the same inertia
+# turning with the child link) made the A1 calf 33% slower than the one-joint model.
+ROTOR_GEAR = 10.0
+ROTOR_SUFFIX = "__rotor"
 
-    APPROXIMATION: a real rotor turns at its joint's rate only, while this inertia turns with the link,
-    so it also loads the joints above it (a thigh carries its calf's armature too; giving the thigh
-    its armature less the calf's made both joints slower in `bench validate`, so it was not kept).
-    Bullet holds a link's inertia as a diagonal in its principal frame, the frame it gives the joint
-    axis in; the armature goes to those axes by the squared cosines of the joint axis (exact where
-    the axis is principal; here all lie within 0.25 rad of one).
-    """
-    for joint, extra in zip(joints, armature):
-        axis = np.array(p.getJointInfo(body, joint)[13])
-        cosines = axis / math.sqrt(sum(a * a for a in axis))  # not np.linalg.norm: BLAS, CPU-dependent bits
-        diagonal = np.array(p.getDynamicsInfo(body, joint)[2])
-        p.changeDynamics(body, joint, localInertiaDiagonal=(diagonal + extra * cosines**2).tolist())
+
+def with_rotors(robot: Robot) -> str:
+    """The robot's URDF text with one rotor link per actuated joint: a child of the joint's parent,
+    at the joint's origin, turning about its axis, a disk with inertia armature / ROTOR_GEAR^2 about it."""
+    tree = ElementTree.parse(robot.urdf)
+    root = tree.getroot()
+    joints = {joint.get("name"): joint for joint in root.findall("joint")}
+    for name, armature in zip(robot.joints, robot.joint_dynamics.armature):
+        joint = joints[name]
+        axis = np.array([float(v) for v in joint.find("axis").get("xyz").split()])
+        axis = axis / math.sqrt(float(axis @ axis))
+        about = armature / ROTOR_GEAR**2
+        inertia = about / 2 * (np.eye(3) + np.outer(axis, axis))  # a thin disk: half as much across the axis
+        link = ElementTree.SubElement(root, "link", name=name + ROTOR_SUFFIX)
+        inertial = ElementTree.SubElement(link, "inertial")
+        ElementTree.SubElement(inertial, "mass", value="1e-3")
+        ElementTree.SubElement(inertial, "inertia", **{f"i{a}{b}": repr(float(inertia[i, j]))
+                                                       for i, a in enumerate("xyz") for j, b in enumerate("xyz") if j >= i})
+        rotor = ElementTree.SubElement(root, "joint", name=name + ROTOR_SUFFIX, type="continuous")
+        ElementTree.SubElement(rotor, "parent", link=joint.find("parent").get("link"))
+        ElementTree.SubElement(rotor, "child", link=name + ROTOR_SUFFIX)
+        origin = joint.find("origin")
+        ElementTree.SubElement(rotor, "origin", xyz=origin.get("xyz", "0 0 0"), rpy=origin.get("rpy", "0 0 0"))
+        ElementTree.SubElement(rotor, "axis", xyz=joint.find("axis").get("xyz"))
+    return ElementTree.tostring(root, encoding="unicode")
+
+
+def gear_rotors(p: BulletClient, body: int, joints: list[int], rotors: list[int]) -> None:
+    """Free each rotor and tie it to its joint: joint rate + ratio * rotor rate = 0 (Bullet's gear law)."""
+    p.setJointMotorControlArray(body, rotors, p.VELOCITY_CONTROL, forces=[0.0] * len(rotors))
+    for joint, rotor in zip(joints, rotors):
+        p.changeDynamics(body, rotor, maxJointVelocity=1000.0, linearDamping=0.0, angularDamping=0.0)
+        gear = p.createConstraint(body, joint, body, rotor, jointType=p.JOINT_GEAR, jointAxis=[1, 0, 0],
+                                  parentFramePosition=[0, 0, 0], childFramePosition=[0, 0, 0])
+        p.changeConstraint(gear, gearRatio=-1.0 / ROTOR_GEAR, maxForce=1e4, erp=0.0)
 
 
 class PybulletSim:
@@ -64,19 +97,21 @@ class PybulletSim:
         p.setPhysicsEngineParameter(deterministicOverlappingPairs=1)
         p.setGravity(0.0, 0.0, physics.gravity)
         self.ground = self._load_terrain()
-        self.body = p.loadURDF(str(robot.urdf), [0.0, 0.0, robot.init_height], flags=p.URDF_USE_INERTIA_FROM_FILE,
-                               useFixedBase=physics.fixed_base)
+        with tempfile.TemporaryDirectory() as folder:  # Bullet reads the file while loading it
+            urdf = Path(folder) / robot.urdf.name
+            urdf.write_text(with_rotors(robot))
+            self.body = p.loadURDF(str(urdf), [0.0, 0.0, robot.init_height], flags=p.URDF_USE_INERTIA_FROM_FILE)
         names = {p.getJointInfo(self.body, i)[12].decode(): i for i in range(p.getNumJoints(self.body))}
         joint_names = {p.getJointInfo(self.body, i)[1].decode(): i for i in range(p.getNumJoints(self.body))}
         self._joints = [joint_names[j] for j in robot.joints]
         self._feet = [names[f] for f in robot.foot_links]
         self._fall_links = [-1 if link == robot.base_link else names[link] for link in robot.fall.contact_links]
-        self._links = [-1] + list(range(p.getNumJoints(self.body)))
+        self._links = [-1] + [i for name, i in names.items() if not name.endswith(ROTOR_SUFFIX)]
         self._link_names = (robot.base_link, *(p.getJointInfo(self.body, i)[12].decode() for i in self._links[1:]))
         for link in self._links:
             p.changeDynamics(self.body, link, lateralFriction=robot.ground_friction, restitution=0.0)
         self._damping = robot.joint_dynamics.damping
-        add_armature(p, self.body, self._joints, robot.joint_dynamics.armature)
+        gear_rotors(p, self.body, self._joints, [joint_names[j + ROTOR_SUFFIX] for j in robot.joints])
         p.setJointMotorControlArray(self.body, self._joints, p.VELOCITY_CONTROL, targetVelocities=[0.0] * len(self._joints),
                                     forces=robot.joint_dynamics.friction.tolist())
         self._com_offset = np.array(p.getDynamicsInfo(self.body, -1)[3])  # base inertial frame in link frame
@@ -84,6 +119,9 @@ class PybulletSim:
         self._nominal_mass = p.getDynamicsInfo(self.body, -1)[0]
         self._strength = 1.0
         self.time = 0.0
+        if physics.fixed_base:  # hung: the free base pinned where reset puts it
+            p.resetBasePositionAndOrientation(self.body, self._com_world([0.0, 0.0, 0.0]), [0, 0, 0, 1])
+            p.createConstraint(self.body, -1, -1, -1, p.JOINT_FIXED, [0, 0, 0], [0, 0, 0], self._com_world([0.0, 0.0, 0.0]))
         # Bullet keeps contact points and warm-start impulses across a teleport; restoring this
         # snapshot at every reset makes a trial independent of the trials the sim ran before.
         self._fresh = p.saveState()

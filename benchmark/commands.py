@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -448,8 +449,11 @@ def cmd_latency(args, threads: int | None) -> int:
                      f"{undrafted} |")
     print("\n".join(lines))
     if args.out:
+        load, cores = os.getloadavg()[0], os.cpu_count()  # above the core count, other work shared the machine
         Path(args.out).write_text(f"# LLM latency and drift by history mode\n\nMade with `bench {' '.join(args.argv)}` "
-                                  f"({threads or 'all'} threads, nothing else running).\n\n" + "\n".join(lines) + "\n")
+                                  f"({threads or 'all'} threads; machine load {load:.1f} on {cores} cores as it "
+                                  f"finished{', so other work shared the cores' if load > cores + 0.5 else ''}).\n\n"
+                                  + "\n".join(lines) + "\n")
         print(f"written to {args.out}", file=sys.stderr)
     return 0
 

@@ -194,7 +194,12 @@ def evaluate(llm: LLMSettings, tier_name: str = "quick", suite_path: Path | str 
             1, int(tier.closed_loop["trials"]))]]}
         row["closed_loop"] = summarize_closed_loop(frame)
     meta = run_metadata(command)
-    row.update(wall_s=round(time.perf_counter() - started, 1), command=command, versions=json.loads(meta["versions"]),
+    # Compute time of the whole row, also over resumed runs: every probe walk's and closed-loop trial's own wall
+    # time (a trial stored before trials recorded theirs counts as 0, so an old store under-reports).
+    closed_wall = float(frame["trial_wall_s"].fillna(0).sum()) if tier.closed_loop is not None and \
+        "trial_wall_s" in frame else 0.0
+    row.update(wall_s=round(answers.wall_s + closed_wall, 1), wall_this_run_s=round(time.perf_counter() - started, 1),
+               command=command, versions=json.loads(meta["versions"]),
                git_commit=meta["git_commit"], fingerprint_id=fingerprint_id(), fingerprint=platform_fingerprint(),
                made_at=time.strftime("%Y-%m-%d %H:%M:%S"),
                load_1m=os.getloadavg()[0])  # above the core count, other work shared the machine: times inflated

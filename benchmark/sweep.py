@@ -76,7 +76,7 @@ class _Worker:
                              f"{type(err).__name__}: {err}") from None
 
     def _row(self, trial: Trial) -> dict:
-        cell, trajectory = trial.cell, _Trajectory()
+        cell, trajectory, started = trial.cell, _Trajectory(), time.perf_counter()
         result = run_cell(cell, [trial.seed], self.resources, hooks=[trajectory])[0]
         seed_policy = shipped_seed_policy_sha256(cell.robot)  # the seed policy (rl, and the LLM's history)
         return {"experiment": trial.experiment, "trial_id": trial.id, "cell_id": trial.cell_id,
@@ -84,6 +84,7 @@ class _Worker:
                 "eval_start": cell.eval_start, **result.to_dict(), "control_dt": PhysicsConfig().control_dt,
                 "seed_policy_sha256": seed_policy, "traj_joint_pos": trajectory.joint_pos,
                 "load_1m": os.getloadavg()[0],  # the machine's load as the trial ended: measured latencies need it
+                "trial_wall_s": time.perf_counter() - started,
                 "traj_joint_target": trajectory.joint_target, "worker": f"{socket.gethostname()}:{os.getpid()}"}
 
     def close(self) -> None:

@@ -155,6 +155,30 @@ def scatter(rows: list[dict], path: Path) -> Path | None:
     return path
 
 
+def seed_policy_lines(rows: list[dict], store: Path) -> list[str]:
+    """Which seed policies made the probe set and ran the closed loop, so rows of two policies never mix silently."""
+    from benchmark.probe import DEFAULT_PROBE, load_probe_set
+    from benchmark.scorecard import stale_seed_policies
+    from benchmark.sweep import shipped_seed_policy_sha256
+
+    lines = []
+    probe = load_probe_set(DEFAULT_PROBE)
+    for digest in sorted({r["probe_digest"] for r in rows}):
+        made = (", ".join(f"{robot} {sha[:12]}" for robot, sha in probe.meta["seed_policy_sha256"].items())
+                if digest == probe.digest else "not the shipped probe set")
+        lines.append(f"Probe set `{digest}`: made with the seed policies {made}.")
+    robots = sorted({cell.split("/")[0] for r in rows for cell in (r.get("closed_loop") or {})})
+    if robots:
+        lines.append("Closed loop: the shipped seed policies are " + ", ".join(
+            f"{robot} {shipped_seed_policy_sha256(robot)}" for robot in robots) + ".")
+        earlier = [f"{_label(r)} ({r['tier']}: {', '.join(stale)})" for r in rows
+                   if (stale := stale_seed_policies(r, store))]
+        if earlier:
+            lines.append("**Ran an earlier seed policy** (its `bench eval` command runs the trials again): "
+                         + "; ".join(earlier) + ".")
+    return [" ".join(lines), ""] if lines else []
+
+
 def write_leaderboard(store: Path | str = DEFAULT_STORE, out: Path | str = "reports",
                       command: str = "bench leaderboard") -> tuple[Path, Path | None]:
     """`OUT/leaderboard.md` and, when there are rows, the self-contained `OUT/leaderboard.html`."""
@@ -184,7 +208,8 @@ def write_leaderboard(store: Path | str = DEFAULT_STORE, out: Path | str = "repo
         order = {name: i for i, name in enumerate(table["model"])}
         shown.sort(key=lambda r: order.get(_label(r), len(order)))
         lines += [to_markdown(table), "", "A model's quick-tier row is left out here and on the page where its full "
-                  "tier ran (the same probe); the store keeps both.", "", "## Per cell", "",
+                  "tier ran (the same probe); the store keeps both.", "", *seed_policy_lines(shown, Path(store)),
+                  "## Per cell", "",
                   to_markdown(per_cell(shown)), ""]
         for comparison in comparisons(rows):
             lines += ["## Paired comparison", "", "The probability, over 2000 bootstrap resamples of the same probe "

@@ -145,6 +145,28 @@ def summarize_closed_loop(frame) -> dict:
     return out
 
 
+def row_seed_policies(frame) -> dict[str, str]:
+    """Robot -> the seed policy (sha256 prefix) its closed-loop trials ran, from their store."""
+    if "seed_policy_sha256" not in frame:
+        return {}
+    return {robot: ", ".join(sorted(g["seed_policy_sha256"].dropna().unique())) for robot, g in frame.groupby("robot")}
+
+
+def stale_seed_policies(row: dict, store: Path) -> list[str]:
+    """Robots whose shipped seed policy is not the one a row's closed loop ran (empty for a probe-only row).
+    A row made before rows recorded it is read from its trial store."""
+    from benchmark.store import load_results
+    from benchmark.sweep import shipped_seed_policy_sha256
+
+    if not row.get("closed_loop"):
+        return []
+    ran = row.get("seed_policy_sha256")
+    if ran is None:
+        trials = store / "trials" / row["row_id"]
+        ran = row_seed_policies(load_results(trials)) if trials.is_dir() else {}
+    return [robot for robot, sha in ran.items() if sha != shipped_seed_policy_sha256(robot)]
+
+
 def answers_to_json(a: ItemAnswers) -> dict:
     return {"cells": a.cells, "errors": a.errors.round(6).tolist(), "hold_errors": a.hold_errors.round(6).tolist(),
             "within_step": a.within_step.tolist(), "parsed": a.parsed.tolist()}
@@ -173,18 +195,26 @@ def evaluate(llm: LLMSettings, tier_name: str = "quick", suite_path: Path | str 
     identity = model_identity(llm.model, llm.url)
     rid = row_id(identity, tier, suite, probe.digest, cells)
     rows = Path(store) / "rows"
-    path = rows / f"{rid}.json"
+    path, found = rows / f"{rid}.json", None
     if path.is_file():
-        print(f"bench: {llm.model} {tier_name} tier already scored ({path}); not run again", file=sys.stderr)
-        return json.loads(path.read_text())
+        found = json.loads(path.read_text())
+        changed = stale_seed_policies(found, Path(store))
+        if not changed:
+            print(f"bench: {llm.model} {tier_name} tier already scored ({path}); not run again", file=sys.stderr)
+            return found
+        print(f"bench: {llm.model} {tier_name} tier's closed loop ran another seed policy ({', '.join(changed)}); "
+              "its trials run again with the shipped one", file=sys.stderr)
     started = time.perf_counter()
-    run, probe_runtime = _probe_run(tier, llm, runtime)
-    print(f"bench: probe {probe.digest}: {llm.model}, {probe.items()} items", file=sys.stderr, flush=True)
     partial = Path(store) / "partial" / f"{rid}.json"
-    answers = answer_walks(probe, run, probe_runtime, partial=partial, progress=print_progress)
     row = {"row_id": rid, "suite": suite.name, "suite_version": suite.version, "tier": tier_name, **identity,
-           "probe_digest": probe.digest, "probe_settings": {**tier.probe}, "probe": summarize_answers(answers),
-           "probe_items": answers_to_json(answers), "cells_filter": list(cells) if cells else None}
+           "probe_digest": probe.digest, "probe_settings": {**tier.probe}, "cells_filter": list(cells) if cells else None}
+    if found is not None:  # the probe set fixes the probe's items: only the closed loop depends on the shipped policy
+        row.update(probe=found["probe"], probe_items=found["probe_items"])
+    else:
+        run, probe_runtime = _probe_run(tier, llm, runtime)
+        print(f"bench: probe {probe.digest}: {llm.model}, {probe.items()} items", file=sys.stderr, flush=True)
+        answers = answer_walks(probe, run, probe_runtime, partial=partial, progress=print_progress)
+        row.update(probe=summarize_answers(answers), probe_items=answers_to_json(answers))
     if tier.closed_loop is not None:
         trials = closed_loop_trials(tier, llm, cells)
         trial_store = ResultStore(Path(store) / "trials" / rid)
@@ -193,12 +223,13 @@ def evaluate(llm: LLMSettings, tier_name: str = "quick", suite_path: Path | str 
         row["closed_loop_settings"] = {**tier.closed_loop, "cells": [t.labels["cell"] for t in trials[::max(
             1, int(tier.closed_loop["trials"]))]]}
         row["closed_loop"] = summarize_closed_loop(frame)
+        row["seed_policy_sha256"] = row_seed_policies(frame)
     meta = run_metadata(command)
     # Compute time of the whole row, also over resumed runs: every probe walk's and closed-loop trial's own wall
     # time (a trial stored before trials recorded theirs counts as 0, so an old store under-reports).
     closed_wall = float(frame["trial_wall_s"].fillna(0).sum()) if tier.closed_loop is not None and \
         "trial_wall_s" in frame else 0.0
-    row.update(wall_s=round(answers.wall_s + closed_wall, 1), wall_this_run_s=round(time.perf_counter() - started, 1),
+    row.update(wall_s=round(row["probe"]["wall_s"] + closed_wall, 1), wall_this_run_s=round(time.perf_counter() - started, 1),
                command=command, versions=json.loads(meta["versions"]),
                git_commit=meta["git_commit"], fingerprint_id=fingerprint_id(), fingerprint=platform_fingerprint(),
                made_at=time.strftime("%Y-%m-%d %H:%M:%S"),

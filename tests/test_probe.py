@@ -215,3 +215,31 @@ def test_the_default_pose_reference_answers_action_zero_in_the_prompts_encoding(
     expected = [np.abs(enc.quantize(np.zeros(12)) - label).mean() for label in labels]
     np.testing.assert_allclose(answers.errors[:2], expected)
     assert answers.parsed.all()
+
+
+def test_a_full_tier_row_made_with_another_seed_policy_is_scored_again(tmp_path, monkeypatch, capsys):
+    """A closed-loop row records the seed policy its trials ran; once another policy ships, `bench eval` runs
+    its trials again (keeping the probe, which the probe set fixes) instead of answering 'already scored'."""
+    import benchmark.sweep as sweep
+    from benchmark.scorecard import evaluate
+
+    suite = tmp_path / "tiny.toml"
+    suite.write_text('name = "tiny"\nversion = 1\n[tiers.t]\nprobe = { history = 10, items = 2 }\n'
+                     'closed_loop = { cells = ["a1/flat"], trials = 1, sim = "mujoco", history = 10, duration = 11.0 }\n')
+    store = tmp_path / "board"
+    first = evaluate(LLMSettings(model="hold"), "t", suite, store)
+    shipped = sweep.shipped_seed_policy_sha256("a1")
+    assert first["seed_policy_sha256"] == {"a1": shipped} and first["closed_loop"]["a1/flat"]["trials"] == 1
+    assert evaluate(LLMSettings(model="hold"), "t", suite, store)["made_at"] == first["made_at"]  # not run again
+    assert "not run again" in capsys.readouterr().err
+
+    monkeypatch.setattr(sweep, "shipped_seed_policy_sha256", lambda robot: "0123456789ab")
+    from benchmark.leaderboard import write_leaderboard
+
+    board, _ = write_leaderboard(store, tmp_path / "out")
+    assert "**Ran an earlier seed policy**" in board.read_text() and "hold (t: a1)" in board.read_text()
+    again = evaluate(LLMSettings(model="hold"), "t", suite, store)
+    assert "ran another seed policy (a1)" in capsys.readouterr().err
+    assert again["seed_policy_sha256"] == {"a1": "0123456789ab"} and again["probe"] == first["probe"]
+    assert json.loads(next((store / "rows").glob("*.json")).read_text())["seed_policy_sha256"] == again[
+        "seed_policy_sha256"]

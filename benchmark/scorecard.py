@@ -218,7 +218,7 @@ def evaluate(llm: LLMSettings, tier_name: str = "quick", suite_path: Path | str 
     if tier.closed_loop is not None:
         trials = closed_loop_trials(tier, llm, cells)
         trial_store = ResultStore(Path(store) / "trials" / rid)
-        run_sweep(trials, trial_store, command=command)
+        run_sweep(trials, trial_store, command=command, threads=runtime.threads, runtime=runtime)
         frame = load_results(trial_store.root)
         row["closed_loop_settings"] = {**tier.closed_loop, "cells": [t.labels["cell"] for t in trials[::max(
             1, int(tier.closed_loop["trials"]))]]}

@@ -13,6 +13,7 @@ the store, so workers need no shared disk.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import importlib.metadata
 import json
@@ -289,17 +290,19 @@ def stale_trials(store: ResultStore) -> set[str]:
 
 def run_sweep(trials: list[Trial], store: ResultStore, workers: int = 1, executor: str = "local",
               address: str | None = None, requests_per_minute: float | None = None,
-              threads: int | None = None, command: str | None = None, concurrency: int = 1) -> SweepOutcome:
+              threads: int | None = None, command: str | None = None, concurrency: int = 1,
+              runtime: Runtime = Runtime()) -> SweepOutcome:
     """Run the trials not yet in `store`, writing each as it finishes. Raises on the first failed trial
-    (what finished before is stored)."""
+    (what finished before is stored). `runtime` carries how the LLM runs (draft, reply cache); `threads` and
+    `requests_per_minute` are split over the workers."""
     if executor not in EXECUTORS:
         raise ValueError(f"unknown executor '{executor}'; valid: {', '.join(EXECUTORS)}")
     if concurrency > 1 and (workers > 1 or executor != "local"):
         raise ValueError("--concurrency runs trials as threads in one local process: use it with --workers 1")
     done = store.done_ids() - stale_trials(store)
     todo = [t for t in trials if t.id not in done]
-    runtime = Runtime(threads=threads or max(1, (os.cpu_count() or 1) // workers),
-                      requests_per_minute=None if requests_per_minute is None else requests_per_minute / workers)
+    runtime = dataclasses.replace(runtime, threads=threads or max(1, (os.cpu_count() or 1) // workers),
+                                  requests_per_minute=None if requests_per_minute is None else requests_per_minute / workers)
     meta = run_metadata(command)
     start = time.perf_counter()
     ran = queries = 0

@@ -54,6 +54,15 @@ def test_a_long_read_prints_a_line_then_one_every_few_seconds_with_an_estimate_o
     with reading.reading(prompt + "Input: [4]\n", cold=False):  # only the new pair: short, no line
         pass
     assert out.getvalue().strip("\x00") == ""
+    slid = "Input: [9, 9, 9]\n" + prompt[len("Input: [1, 2, 3]\n"):]  # the window moved: no common prefix
+    with reading.reading(slid, cold=False):  # a model that rereads it: a long read
+        pass
+    assert "reading a prompt of about" in out.getvalue()
+    out.truncate(0)
+    out.seek(0)
+    with reading.reading(prompt, cold=False, shifted=True):  # KV-cache shifting moves the window: no line
+        pass
+    assert out.getvalue() == ""
 
 
 def test_recent_rate_forgets_a_slow_start():

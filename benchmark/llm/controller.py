@@ -234,7 +234,7 @@ class LLMPolicy:
         """The model's reply; a model that reads its prompt reports long reads and teaches the reading rate."""
         if not getattr(self.model, "reads_prompt", True):
             return self.model.complete(prompt, self.settings.sampling, self.constraint, cold=cold)
-        with self.reading.reading(prompt, cold):
+        with self.reading.reading(prompt, cold, shifted=self.settings.history_mode == "shifted"):
             reply = self.model.complete(prompt, self.settings.sampling, self.constraint, cold=cold)
         if not reply.cached:
             self.reading.learn(prompt, reply.prompt_tokens, reply.prompt_tokens - reply.cached_tokens,

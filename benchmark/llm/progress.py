@@ -33,9 +33,12 @@ class PromptReading:
         print(f"bench: {text}", file=self.stream or sys.stderr, flush=True)
 
     @contextmanager
-    def reading(self, prompt: str, cold: bool) -> Iterator[None]:
-        """Around one query: a line at the start of a long read, then one every `every_s` until it ends."""
-        new_chars = len(prompt) if cold else len(prompt) - len(commonprefix([self._last_prompt, prompt]))
+    def reading(self, prompt: str, cold: bool, shifted: bool = False) -> Iterator[None]:
+        """Around one query: a line at the start of a long read, then one every `every_s` until it ends.
+        `shifted`: the model moves its cached window instead of rereading it (KV-cache shifting), so a warm
+        query reads only the newest pair, whatever the prompts' common prefix."""
+        common = len(prompt) if shifted and self._last_prompt else len(commonprefix([self._last_prompt, prompt]))
+        new_chars = len(prompt) if cold else max(0, len(prompt) - common)
         self._last_prompt = prompt
         tokens = new_chars / (self.chars_per_token or CHARS_PER_TOKEN_GUESS)
         if tokens < self.min_tokens:

@@ -107,13 +107,14 @@ def row_id(identity: dict, tier: Tier, suite: Suite, probe_digest: str, cells: t
     return hashlib.sha256(key.encode()).hexdigest()[:16]
 
 
-def _probe_run(tier: Tier, llm: LLMSettings, runtime: Runtime) -> tuple[ProbeRun, Runtime]:
-    """The tier's probe run, and the runtime it needs (a tier may fix the decoding, `draft`)."""
+def _probe_run(tier: Tier, llm: LLMSettings, runtime: Runtime,
+               cells: tuple[str, ...] | None = None) -> tuple[ProbeRun, Runtime]:
+    """The tier's probe run on `cells` (None: all), and the runtime it needs (a tier may fix the decoding, `draft`)."""
     values = dict(tier.probe)
     window, items = values.pop("window", "grow"), values.pop("items", None)
     if "draft" in values:
         runtime = dataclasses.replace(runtime, draft=values.pop("draft"))
-    return ProbeRun(llm=dataclasses.replace(llm, **values), window=window, items=items), runtime
+    return ProbeRun(llm=dataclasses.replace(llm, **values), window=window, items=items, cells=cells), runtime
 
 
 def closed_loop_trials(tier: Tier, llm: LLMSettings, cells: tuple[str, ...] | None) -> list[Trial]:
@@ -211,8 +212,10 @@ def evaluate(llm: LLMSettings, tier_name: str = "quick", suite_path: Path | str 
     if found is not None:  # the probe set fixes the probe's items: only the closed loop depends on the shipped policy
         row.update(probe=found["probe"], probe_items=found["probe_items"])
     else:
-        run, probe_runtime = _probe_run(tier, llm, runtime)
-        print(f"bench: probe {probe.digest}: {llm.model}, {probe.items()} items", file=sys.stderr, flush=True)
+        run, probe_runtime = _probe_run(tier, llm, runtime, cells)
+        chosen = [w for w in probe.walks if cells is None or w.cell in cells]
+        print(f"bench: probe {probe.digest}: {llm.model}, {dataclasses.replace(probe, walks=tuple(chosen)).items()} "
+              "items", file=sys.stderr, flush=True)
         answers = answer_walks(probe, run, probe_runtime, partial=partial, progress=print_progress)
         row.update(probe=summarize_answers(answers), probe_items=answers_to_json(answers))
     if tier.closed_loop is not None:

@@ -243,3 +243,14 @@ def test_a_full_tier_row_made_with_another_seed_policy_is_scored_again(tmp_path,
     assert again["seed_policy_sha256"] == {"a1": "0123456789ab"} and again["probe"] == first["probe"]
     assert json.loads(next((store / "rows").glob("*.json")).read_text())["seed_policy_sha256"] == again[
         "seed_policy_sha256"]
+
+
+def test_eval_cells_restrict_the_probe_as_well_as_the_closed_loop(tmp_path):
+    """`bench eval --cells a1/flat` (for a slow model) asks the probe's a1/flat items only."""
+    from benchmark.scorecard import evaluate
+
+    suite = tmp_path / "tiny.toml"
+    suite.write_text('name = "tiny"\nversion = 1\n[tiers.t]\nprobe = { history = 10, items = 2 }\n')
+    row = evaluate(LLMSettings(model="hold"), "t", suite, tmp_path / "board", cells=("a1/flat",))
+    assert set(row["probe"]["cells"]) == {"a1/flat"} and set(row["probe_items"]["cells"]) == {"a1/flat"}
+    assert row["probe"]["items"] == 2 * sum(w.cell == "a1/flat" for w in load_probe_set().walks)

@@ -218,6 +218,7 @@ def evaluate(llm: LLMSettings, tier_name: str = "quick", suite_path: Path | str 
               "items", file=sys.stderr, flush=True)
         answers = answer_walks(probe, run, probe_runtime, partial=partial, progress=print_progress)
         row.update(probe=summarize_answers(answers), probe_items=answers_to_json(answers))
+    closed_wall = 0.0
     if tier.closed_loop is not None:
         trials = closed_loop_trials(tier, llm, cells)
         trial_store = ResultStore(Path(store) / "trials" / rid)
@@ -227,13 +228,13 @@ def evaluate(llm: LLMSettings, tier_name: str = "quick", suite_path: Path | str 
             1, int(tier.closed_loop["trials"]))]]}
         row["closed_loop"] = summarize_closed_loop(frame)
         row["seed_policy_sha256"] = row_seed_policies(frame)
+        # a trial stored before trials recorded their wall time counts as 0: an old store under-reports
+        closed_wall = float(frame["trial_wall_s"].fillna(0).sum()) if "trial_wall_s" in frame else 0.0
     meta = run_metadata(command)
-    # Compute time of the whole row, also over resumed runs: every probe walk's and closed-loop trial's own wall
-    # time (a trial stored before trials recorded theirs counts as 0, so an old store under-reports).
-    closed_wall = float(frame["trial_wall_s"].fillna(0).sum()) if tier.closed_loop is not None and \
-        "trial_wall_s" in frame else 0.0
-    row.update(wall_s=round(row["probe"]["wall_s"] + closed_wall, 1), wall_this_run_s=round(time.perf_counter() - started, 1),
-               command=command, versions=json.loads(meta["versions"]),
+    # wall_s: compute time of the whole row over every resumed run (each probe walk's and trial's own time)
+    row.update(wall_s=round(row["probe"]["wall_s"] + closed_wall, 1),
+               wall_this_run_s=round(time.perf_counter() - started, 1), command=command,
+               versions=json.loads(meta["versions"]),
                git_commit=meta["git_commit"], fingerprint_id=fingerprint_id(), fingerprint=platform_fingerprint(),
                made_at=time.strftime("%Y-%m-%d %H:%M:%S"),
                load_1m=os.getloadavg()[0])  # above the core count, other work shared the machine: times inflated

@@ -51,10 +51,13 @@ def _cell_key(name: str) -> tuple:
     return (CELL_ORDER.index(name) if name in CELL_ORDER else len(CELL_ORDER), name)
 
 
-def rank_correlation(rows: list[dict]) -> tuple[float | None, int]:
-    """Spearman's rank correlation of probe skill with closed-loop NWT over (row, cell) points, and their count."""
+def rank_correlation(rows: list[dict], models_only: bool = False) -> tuple[float | None, int]:
+    """Spearman's rank correlation of probe skill with closed-loop NWT over (row, cell) points, and their count.
+
+    `models_only` leaves the reference controllers out: how the probe orders LLMs, not walkers from freezers."""
     import pandas as pd
 
+    rows = [r for r in rows if not (models_only and r.get("kind") == "reference")]
     points = [(r["probe"]["cells"][cell]["skill"], c["nwt"]) for r in rows
               for cell, c in (r.get("closed_loop") or {}).items() if cell in r["probe"]["cells"]]
     if len(points) < 3:
@@ -82,7 +85,9 @@ def headline(rows: list[dict]):
     if frame.empty:
         return frame
     frame["_ref"] = frame["kind"] == "reference"
-    return frame.sort_values(["_ref", "_skill"], ascending=[True, False]).drop(columns=["_skill", "_ref"])
+    frame["_restricted"] = [r.get("cells_filter") is not None for r in rows]  # fewer items: not comparable overall
+    return frame.sort_values(["_ref", "_restricted", "_skill"], ascending=[True, True, False]).drop(
+        columns=["_skill", "_ref", "_restricted"])
 
 
 def per_cell(rows: list[dict]):
@@ -106,13 +111,17 @@ def per_cell(rows: list[dict]):
 
 
 def comparisons(rows: list[dict]):
-    """P(row beats column) for every pair of model rows scored on the same probe items and settings."""
+    """P(row beats column) for every pair of model rows scored on the same probe items and settings.
+
+    A row restricted to some cells (`bench eval --cells`) answered fewer items, so it is compared only with
+    rows restricted the same way."""
     import pandas as pd
 
     models = [r for r in rows if r.get("kind") != "reference"]
     groups: dict = {}
     for r in models:
-        groups.setdefault((r["probe_digest"], str(r["probe_settings"])), {})[_label(r)] = answers_from_json(
+        key = (r["probe_digest"], str(r["probe_settings"]), str(r.get("cells_filter")))
+        groups.setdefault(key, {})[_label(r)] = answers_from_json(
             r["probe_items"])
     tables = []
     for answers in groups.values():
@@ -139,9 +148,13 @@ def scatter(rows: list[dict], path: Path) -> Path | None:
         return None
     fig, ax = plt.subplots(figsize=(6, 4.2))
     for model in dict.fromkeys(_label(p[0]) for p in points):
-        xs = [p[2] for p in points if _label(p[0]) == model]
-        ys = [p[3] for p in points if _label(p[0]) == model]
-        ax.scatter(xs, ys, label=model, s=30)
+        mine = [p for p in points if _label(p[0]) == model]
+        xs, ys = [p[2] for p in mine], [p[3] for p in mine]
+        if mine[0][0].get("kind") == "reference":  # references hollow, LLMs filled diamonds
+            ax.scatter(xs, ys, label=f"{model} (reference)", s=30, facecolors="none",
+                       edgecolors=f"C{len(ax.collections)}")
+        else:
+            ax.scatter(xs, ys, label=model, s=45, marker="D")
     ax.set_xlabel("probe skill (1 - error / hold's error), per cell")
     ax.set_ylabel("closed-loop NWT (10 s LLM phase), per cell")
     ax.axvline(0.0, color="grey", lw=0.8, ls=":")
@@ -153,6 +166,28 @@ def scatter(rows: list[dict], path: Path) -> Path | None:
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path
+
+
+def correlation_text(rows: list[dict]) -> str:
+    """Whether probe skill predicts closed-loop NWT: over every point, and over the LLMs' points alone."""
+    rho, n = rank_correlation(rows)
+    models = sorted({_label(r) for r in rows if r.get("closed_loop")})
+    text = (f"Spearman's rank correlation of probe skill with closed-loop NWT over the {n} (model, cell) points "
+            f"that have both: {rho:.2f}." if rho is not None else "Too few points for a correlation.")
+    text += f" The points come from {len(models)} row(s) ({', '.join(models)})."
+    llm_rho, llm_n = rank_correlation(rows, models_only=True)
+    if llm_n == 0:
+        return text + (" Only reference controllers have closed-loop rows: it says how the probe orders controllers "
+                       "that walk or freeze, not yet how it orders LLMs.")
+    if llm_rho is None or np.isnan(llm_rho):
+        return text + (f" The LLMs alone give {llm_n} point(s), too few (or too tied) for a correlation of their "
+                       "own: the references' walkers and freezers carry the number above.")
+    llms = {r["model"] for r in rows if r.get("kind") != "reference" and r.get("closed_loop")}
+    text += f" Over the LLMs' {llm_n} points alone ({len(llms)} model(s)): {llm_rho:.2f}"
+    if len(llms) < 3:
+        return text + (f"; with {len(llms)} model(s) this is a direction, not a measurement: one model's cells differ "
+                       "by trial noise, and the rest is which model both imitated and walked better.")
+    return text + "."
 
 
 def seed_policy_lines(rows: list[dict], store: Path) -> list[str]:
@@ -208,7 +243,9 @@ def write_leaderboard(store: Path | str = DEFAULT_STORE, out: Path | str = "repo
         order = {name: i for i, name in enumerate(table["model"])}
         shown.sort(key=lambda r: order.get(_label(r), len(order)))
         lines += [to_markdown(table), "", "A model's quick-tier row is left out here and on the page where its full "
-                  "tier ran (the same probe); the store keeps both.", "", *seed_policy_lines(shown, Path(store)),
+                  "tier ran (the same probe); the store keeps both. A row named with cells in brackets "
+                  "(`bench eval --cells`, for a slow model) answered only those cells' probe items: its skill "
+                  "compares with the same cells' column below, not with the overall skills above it.", "", *seed_policy_lines(shown, Path(store)),
                   "## Per cell", "",
                   to_markdown(per_cell(shown)), ""]
         for comparison in comparisons(rows):
@@ -217,14 +254,8 @@ def write_leaderboard(store: Path | str = DEFAULT_STORE, out: Path | str = "repo
                       "0.975 or below 0.025 it is.", "", to_markdown(comparison), ""]
         figure = scatter(shown, out / "figures" / "leaderboard_probe_vs_closed_loop.png")
         if figure is not None:
-            rho, n = rank_correlation(shown)
-            models = sorted({_label(r) for r in shown if r.get("closed_loop")})
-            verdict = (f"Spearman's rank correlation of probe skill with closed-loop NWT over the {n} (model, cell) "
-                       f"points that have both: {rho:.2f}." if rho is not None else "Too few points for a correlation.")
-            lines += ["## Probe skill against closed-loop NWT", "", f"{verdict} The points come from "
-                      f"{len(models)} model(s) ({', '.join(models)}); where only reference controllers have closed-loop "
-                      "rows, it says how the probe orders controllers that walk or freeze, not yet how it orders LLMs.",
-                      "", f"![probe vs closed loop](figures/{figure.name})", ""]
+            lines += ["## Probe skill against closed-loop NWT", "", correlation_text(shown), "",
+                      f"![probe vs closed loop](figures/{figure.name})", ""]
         made = sorted({(r["fingerprint_id"], r["fingerprint"]["cpu"]) for r in rows})
         lines += ["Made on: " + "; ".join(f"`{f}` {cpu}" for f, cpu in made) + ".", "",
                   "Commands:", "", *[f"    {r['command']}" for r in rows], ""]

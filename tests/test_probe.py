@@ -254,3 +254,14 @@ def test_eval_cells_restrict_the_probe_as_well_as_the_closed_loop(tmp_path):
     row = evaluate(LLMSettings(model="hold"), "t", suite, tmp_path / "board", cells=("a1/flat",))
     assert set(row["probe"]["cells"]) == {"a1/flat"} and set(row["probe_items"]["cells"]) == {"a1/flat"}
     assert row["probe"]["items"] == 2 * sum(w.cell == "a1/flat" for w in load_probe_set().walks)
+    # Beside rows of every cell, restricted rows are compared only with rows restricted the same way.
+    from benchmark.leaderboard import comparisons
+    from benchmark.scorecard import load_rows
+
+    for model in ("knn", "replay"):
+        evaluate(LLMSettings(model=model), "t", suite, tmp_path / "board")
+        evaluate(LLMSettings(model=model), "t", suite, tmp_path / "board", cells=("a1/flat",))
+    rows = [{**r, "kind": "server"} for r in load_rows(tmp_path / "board")]  # as if they were models
+    tables = comparisons(rows)
+    assert sorted(sorted(t["P(row > column)"]) for t in tables) == [
+        ["hold (a1/flat)", "knn (a1/flat)", "replay (a1/flat)"], ["knn", "replay"]]

@@ -18,9 +18,9 @@ from dataclasses import dataclass
 import gymnasium as gym
 import numpy as np
 
-from benchmark.control import FIXED_COMMAND, ControlLoop, HeadingHold
+from benchmark.control import FIXED_COMMAND, ControlLoop, HeadingHold, yaw_of
 from benchmark.observation import RL_OBS_DIM
-from benchmark.rewards import FeetAirTime, RewardWeights, walking_reward
+from benchmark.rewards import FeetAirTime, RewardWeights, TurningRate, walking_reward
 from robots import available_robots, load_robot
 from sims import ENGINES, make_sim
 from sims.base import Dynamics
@@ -72,6 +72,7 @@ class LocomotionEnv(gym.Env):
         self.observation_space = gym.spaces.Box(-np.inf, np.inf, (RL_OBS_DIM,), np.float32)
         self._noise = observation_noise_amplitudes(self.robot.obs_scales)
         self._air = FeetAirTime(len(self.robot.foot_links))
+        self._turning = TurningRate(round(rewards.turning_window_s / self.loop.dt))
         self._push_every = int(round(randomization.push_interval_s / self.loop.dt)) if randomization else 0
 
     def _observe(self) -> np.ndarray:
@@ -92,6 +93,7 @@ class LocomotionEnv(gym.Env):
         target = self.np_random.uniform(-r.heading, r.heading) if r is not None and not straight else 0.0
         self.loop.reset(int(self.np_random.integers(2**31)), target_heading=target)
         self._air.reset()
+        self._turning.reset(yaw_of(self.loop.state.base_quat))
         return self._observe(), {}
 
     def step(self, action: np.ndarray):
@@ -101,9 +103,11 @@ class LocomotionEnv(gym.Env):
         if self._push_every and loop.steps % self._push_every == 0:
             self.sim.push_base(self.np_random.uniform(-1.0, 1.0, 2) * self.randomization.push_velocity)
         air = self._air.update(loop.state.foot_contact, loop.dt, self.rewards.air_time_target)
+        turning = self._turning.update(yaw_of(loop.state.base_quat), loop.dt)
         x, y, z = loop.state.base_pos
         reward = walking_reward(loop.state, self.robot, loop.command, loop.action, last_action, air, self.rewards,
-                                loop.heading_error, base_height=float(z) - self.terrain.height_at(x, y))
+                                loop.heading_error, base_height=float(z) - self.terrain.height_at(x, y),
+                                turning_rate=turning)
         terminated = loop.fall is not None
         truncated = loop.steps >= self.max_steps
         info = {"fall": loop.fall} if terminated else {}

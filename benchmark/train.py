@@ -64,6 +64,9 @@ class TrainConfig:
                                  "so the policy has no turning bias (--no-mirror: as the earlier policies)")
     mirror_loss: float = setting(0.0, "weight of the symmetry loss |mu(s) - M mu(M s)|^2, a few epochs after each "
                                       "PPO update (with --mirror); it makes the actor itself equivariant", minimum=0)
+    symmetric_actor: bool = setting(False, "train the symmetric actor itself: its mean is the average of its answer and "
+                                           "the mirror of its answer to the mirrored observation, exactly as symmetric "
+                                           "inference runs it, so it is equivariant while it learns (no turning bias)")
     rewards: RewardWeights = RewardWeights()
     ppo: PPOSettings = PPOSettings()
     num_envs: int = 8
@@ -181,6 +184,52 @@ def mirror_loss_step(policy, observations: np.ndarray, weight: float, batch_size
     return before
 
 
+def symmetric_actor_policy():
+    """An SB3 ActorCriticPolicy whose Gaussian mean is mu_sym(s) = (mu(s) + M mu(M s)) / 2.
+
+    The shipped runner answers with the same mean (`MlpActor.symmetric`), so PPO optimises exactly the
+    policy that is run, and it is mirror-equivariant at every update: unlike a symmetry loss, nothing
+    pulls the plain actor toward a gait that is its own mirror image (a bound); a trot stays allowed."""
+    import torch
+    from stable_baselines3.common.policies import ActorCriticPolicy, BasePolicy
+
+    from benchmark.symmetry import mirror_joints, mirror_rl_observation
+
+    class SymmetricActorPolicy(ActorCriticPolicy):
+        def __init__(self, *args, **kwargs) -> None:
+            super().__init__(*args, **kwargs)
+            dims = self.observation_space.shape[0], self.action_space.shape[0]
+            # both mirrors are linear: x -> x @ M, with M the mirror of the identity
+            self.register_buffer("obs_mirror", torch.as_tensor(mirror_rl_observation(np.eye(dims[0])),
+                                                               dtype=torch.float32), persistent=False)
+            self.register_buffer("action_mirror", torch.as_tensor(mirror_joints(np.eye(dims[1])),
+                                                                  dtype=torch.float32), persistent=False)
+
+        def _plain_mean(self, obs):
+            features = BasePolicy.extract_features(self, obs, self.pi_features_extractor)
+            return self.action_net(self.mlp_extractor.forward_actor(features))
+
+        def _distribution(self, obs):
+            obs = obs.float()
+            mean = 0.5 * (self._plain_mean(obs) + self._plain_mean(obs @ self.obs_mirror) @ self.action_mirror)
+            return self.action_dist.proba_distribution(mean, self.log_std)
+
+        def forward(self, obs, deterministic: bool = False):
+            distribution = self._distribution(obs)
+            actions = distribution.get_actions(deterministic=deterministic)
+            return actions.reshape((-1, *self.action_space.shape)), self.predict_values(obs), \
+                distribution.log_prob(actions)
+
+        def evaluate_actions(self, obs, actions):
+            distribution = self._distribution(obs)
+            return self.predict_values(obs), distribution.log_prob(actions), distribution.entropy()
+
+        def get_distribution(self, obs):
+            return self._distribution(obs)
+
+    return SymmetricActorPolicy
+
+
 def symmetric_ppo(mirror_loss: float = 0.0):
     """stable-baselines3's PPO, updating on each rollout and its mirror image (`mirrored_rollout`), then,
     when `mirror_loss` > 0, on the symmetry loss (`mirror_loss_step`); `mirror_error` holds the RMS
@@ -236,7 +285,7 @@ def train(config: TrainConfig, stop: Callable[[], bool] = lambda: False, command
     log_std = float(np.log(c.exploration_rad / load_robot(robot).action_scale))
     net = list(c.net)
     algorithm = symmetric_ppo(c.mirror_loss) if c.mirror else PPO
-    model = algorithm("MlpPolicy", vec, seed=seed, device="cpu", verbose=0, **asdict(c.ppo),
+    model = algorithm(symmetric_actor_policy() if c.symmetric_actor else "MlpPolicy", vec, seed=seed, device="cpu", verbose=0, **asdict(c.ppo),
                 policy_kwargs=dict(net_arch=dict(pi=net, vf=net), activation_fn=nn.ELU, log_std_init=log_std))
     if init_from is not None:
         load_actor_into(model, MlpActor.load(init_from))
@@ -252,7 +301,8 @@ def train(config: TrainConfig, stop: Callable[[], bool] = lambda: False, command
                 "versions": {"python": platform.python_version(), "torch": torch.__version__,
                              "stable_baselines3": stable_baselines3.__version__, "gymnasium": gymnasium.__version__,
                              "mujoco": mujoco.__version__}, "ppo": asdict(c.ppo), "mirror": c.mirror, "mirror_loss": c.mirror_loss,
-                "symmetric": c.mirror, "net": net, "rewards": asdict(rewards),
+                "symmetric": c.mirror or c.symmetric_actor,
+                "symmetric_actor": c.symmetric_actor, "net": net, "rewards": asdict(rewards),
                 "init_from": None if init_from is None else {"path": str(init_from),
                                                              **MlpActor.load(init_from).meta}}
 

@@ -12,7 +12,7 @@ import benchmark.envs  # noqa: F401  (registers the environments)
 from benchmark.control import ControlLoop
 from benchmark.envs import LocomotionEnv, Randomization
 from benchmark.mlp import MlpActor
-from benchmark.rewards import FeetAirTime, RewardWeights, walking_reward
+from benchmark.rewards import FeetAirTime, RewardWeights, TurningRate, walking_reward
 from robots import load_robot
 
 
@@ -81,6 +81,31 @@ def test_feet_air_time_rewards_long_steps():
     air.update(up, 0.1, 0.2)
     assert air.update(up, 0.1, 0.2) == 0.0
     assert air.update(down, 0.1, 0.2) == pytest.approx(0.4 - 0.2)
+
+
+def test_turning_rate_is_the_heading_change_over_its_window_across_the_wrap():
+    rate = TurningRate(window=10)
+    rate.reset(3.1)
+    yaws = [3.1 + 0.01 * k for k in range(1, 21)]  # turning left at 0.1 rad/s, through +pi to -pi
+    rates = [rate.update((y + np.pi) % (2 * np.pi) - np.pi, 0.1) for y in yaws]
+    np.testing.assert_allclose(rates, 0.1, atol=1e-9)
+    # a wobble that returns to its heading within the window is no turn at all
+    rate.reset(0.0)
+    wobble = [rate.update(0.05 * np.sin(np.pi * k / 2), 0.1) for k in range(1, 41)]
+    assert abs(wobble[-1]) < 1e-9 and max(map(abs, wobble)) <= 0.5 + 1e-9
+
+
+def test_the_turning_term_penalizes_turning_against_the_command():
+    robot = load_robot("a1")
+    env = LocomotionEnv("a1", randomization=None, rewards=RewardWeights(turning=-2.0))
+    env.reset(seed=0)
+    zeros = np.zeros(12)
+    state = env.loop.state._replace(base_lin_vel=np.array([1.0, 0.0, 0.0]))  # walking: above the clip
+    w = RewardWeights(turning=-2.0)
+    straight = walking_reward(state, robot, robot.command, zeros, zeros, 0.0, w, turning_rate=0.0)
+    turning = walking_reward(state, robot, robot.command, zeros, zeros, 0.0, w, turning_rate=0.3)
+    assert straight - turning == pytest.approx(0.6)
+    env.close()
 
 
 def test_smoke_training_writes_a_loadable_policy_and_log(tmp_path):

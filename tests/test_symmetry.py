@@ -110,3 +110,28 @@ def test_the_mirror_loss_makes_an_asymmetric_actor_equivariant():
     after = mirror_loss_step(policy, observations, weight=1.0, batch_size=128, epochs=0)  # measures only
     assert before > 0.3 and after < 0.2 * before, (before, after)
     assert mirror_loss_step(policy, observations, weight=1.0, batch_size=128, epochs=0) == after  # epochs=0 leaves it
+
+
+def test_a_symmetric_actor_trains_equivariant_and_ships_as_it_trained(tmp_path):
+    """`--symmetric-actor`: PPO's Gaussian mean is (mu(s) + M mu(M s)) / 2 at every update, and the exported
+    actor (run with symmetric inference) answers exactly what the trained policy's mean answered."""
+    import torch
+
+    from benchmark.mlp import MlpActor
+    from benchmark.train import TrainConfig, symmetric_actor_policy, train
+
+    path = train(TrainConfig(robot="a1", steps=2048, seed=0, out=str(tmp_path), eval_every=10**9, mirror=False,
+                             symmetric_actor=True))
+    actor = MlpActor.load(path)
+    assert actor.symmetric and actor.meta["symmetric_actor"]
+    obs = np.random.default_rng(3).normal(size=(4, 48))
+    for x in obs:
+        np.testing.assert_allclose(actor(mirror_rl_observation(x)), mirror_joints(actor(x)), atol=1e-12)
+    # the policy PPO trained, reloaded: its mean is the exported actor's answer
+    from stable_baselines3 import PPO
+
+    model = PPO.load(tmp_path / "ppo_model.zip", custom_objects={"policy_class": symmetric_actor_policy()},
+                     device="cpu")
+    with torch.no_grad():
+        mean = model.policy.get_distribution(torch.as_tensor(obs, dtype=torch.float32)).distribution.mean.numpy()
+    np.testing.assert_allclose(mean, np.stack([actor(x) for x in obs]), atol=1e-5)

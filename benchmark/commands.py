@@ -221,8 +221,10 @@ def cmd_sweep(args, overrides_text: list[str], only_text: list[str]) -> int:
     if root.exists() and not root.is_dir():
         raise CliError(f"--results '{root}' is a file; give a directory (the store holds one file per trial)")
     store = ResultStore(root)
-    done = store.done_ids()
     if args.dry_run:
+        from benchmark.sweep import stale_trials
+
+        done = store.done_ids() - stale_trials(store)  # a trial of another seed policy runs again
         cells: dict[str, list] = {}
         for t in trials:
             cells.setdefault(t.cell_id, []).append(t)

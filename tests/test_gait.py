@@ -20,8 +20,8 @@ FIXED_COMMAND_POLICIES = [r for r in available_robots() if MlpActor.load(load_ro
 
 @pytest.mark.parametrize("robot_name, hold", [(r, r not in FIXED_COMMAND_POLICIES) for r in available_robots()])
 def test_shipped_policy_trots_near_the_default_stance(robot_name, hold):
-    """At the fixed command for policies trained for it; A1's earlier policy is held to the targets as they
-    were set, on its steered walk (at the fixed command its left/right gap is 0.204 rad, reports/gait.md)."""
+    """At the fixed command for policies trained for it (both shipped ones); a policy trained before the fixed
+    command is held to the targets on its steered walk, as they were set."""
     robot, q, contacts, falls = record(GaitConfig(trials=2, duration=8.0, heading_hold=hold), robot_name)
     assert falls == [None, None]
     summary = summary_row(robot, q, contacts)

@@ -37,7 +37,7 @@ def test_with_the_heading_hold_every_shipped_policy_keeps_its_line(robot_name, t
 STRAIGHT = [r for r in available_robots() if MlpActor.load(load_robot(r).folder / "policy.npz").symmetric]
 
 
-@pytest.mark.parametrize("robot_name", STRAIGHT)  # A1's shipped policy predates the fixed-command training
+@pytest.mark.parametrize("robot_name", STRAIGHT)  # policies trained for the fixed command (symmetric inference)
 def test_a_policy_trained_for_the_fixed_command_walks_straight_without_help(robot_name):
     """MuJoCo, flat, 19 s of walking at the fixed command: the straight-walking targets (bench straight)."""
     from benchmark.straight import TARGETS, StraightConfig, measure

@@ -301,3 +301,22 @@ def test_trials_of_another_seed_policy_run_again_and_say_so(tmp_path, capsys):
     assert run_sweep(trials, store).ran == 1
     assert "1 stored trial(s) of a1 ran another seed policy (0123456789ab, now" in capsys.readouterr().err
     assert len(load_results(store.root)) == 1
+
+
+def test_a_dry_run_counts_trials_of_another_seed_policy_as_missing(tmp_path, capsys):
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from benchmark.cli import main
+
+    args = ["sweep", str(TINY), "--results", str(tmp_path / "store"), "--set", "duration=0.5", "--seeds", "1",
+            "--only", "terrain=flat"]
+    assert main(args) == 0
+    capsys.readouterr()
+    assert main([*args, "--dry-run"]) == 0
+    assert "1 trials, 0 missing" in capsys.readouterr().out
+    path = next((tmp_path / "store" / "trials").glob("*.parquet"))
+    row = pq.read_table(path).to_pylist()[0]
+    pq.write_table(pa.Table.from_pylist([{**row, "seed_policy_sha256": "0123456789ab"}]), path)
+    assert main([*args, "--dry-run"]) == 0
+    assert "1 trials, 1 missing" in capsys.readouterr().out

@@ -152,6 +152,9 @@ def realtime_section(group: pd.DataFrame) -> list[str]:
                                                         if g["NWT"].max() == 0 else "")
         if budget:
             need = f"the seed policy's latency budget here is {budget:g} s, so the model must answer {mean / budget:.0f}x faster"
+        elif budget == 0:
+            need = ("the seed policy's latency budget here is 0 s: even one held control period (0.1 s) stops it "
+                    f"walking, so no measured latency fits; keeping up at all needs answers {mean / 0.1:.0f}x faster")
         else:
             need = "the seed policy has no latency budget here in the committed latency experiment"
         lines += [f"- {robot}/{terrain}: {fell}; mean latency {mean:.2f} s; {need}.", ""]

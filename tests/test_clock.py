@@ -108,3 +108,17 @@ def test_the_real_clock_section_reads_the_committed_realtime_store():
     text = "\n".join(realtime_section(frame))
     assert "## On the real clock (measured latency)" in text and "real-time factor" in text
     assert text.count("| a1 | flat |") == len(frame) and "faster" in text
+
+
+@pytest.mark.parametrize(("budget", "says"), [(0.1, "budget here is 0.1 s"), (0.0, "budget here is 0 s: even one held"),
+                                              (None, "has no latency budget")])
+def test_a_budget_of_zero_seconds_is_a_budget_not_a_missing_one(budget, says, monkeypatch):
+    from pathlib import Path
+
+    import pandas as pd
+
+    import benchmark.report_latency as report_latency
+
+    monkeypatch.setattr(report_latency, "seed_policy_budget", lambda robot, terrain: budget)
+    frame = pd.read_parquet(Path(__file__).parents[1] / "reports" / "data" / "realtime.parquet")
+    assert says in "\n".join(report_latency.realtime_section(frame))

@@ -202,6 +202,11 @@ def seed_policy_lines(rows: list[dict], store: Path) -> list[str]:
         made = (", ".join(f"{robot} {sha[:12]}" for robot, sha in probe.meta["seed_policy_sha256"].items())
                 if digest == probe.digest else "not the shipped probe set")
         lines.append(f"Probe set `{digest}`: made with the seed policies {made}.")
+        if digest == probe.digest and any(sha[:12] != shipped_seed_policy_sha256(robot)
+                                          for robot, sha in probe.meta["seed_policy_sha256"].items()):
+            lines.append("A probe set is a fixed dataset, like a test set, so a newly shipped seed policy leaves it "
+                         "as it is and its rows stay comparable (its walks ran at the fixed command: every label is "
+                         "a function of what its prompts show); `bench probe --make` makes another.")
     robots = sorted({cell.split("/")[0] for r in rows for cell in (r.get("closed_loop") or {})})
     if robots:
         lines.append("Closed loop: the shipped seed policies are " + ", ".join(

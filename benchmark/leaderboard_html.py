@@ -40,12 +40,14 @@ function sortBy(key, dir){
   const rows=[...body.querySelectorAll('tr.row')];
   const num=document.querySelector('th[data-key="'+key+'"]').dataset.kind==='number';
   const value=r=>{const v=r.querySelector('td[data-key="'+key+'"]').dataset.value;return num?(v===''?NaN:parseFloat(v)):v;};
-  const models=rows.filter(r=>!r.classList.contains('reference')), refs=rows.filter(r=>r.classList.contains('reference'));
+  const has=(r,c)=>r.classList.contains(c);
+  const models=rows.filter(r=>!has(r,'reference')&&!has(r,'restricted')), some=rows.filter(r=>has(r,'restricted'));
+  const refs=rows.filter(r=>has(r,'reference'));
   const cmp=(a,b)=>{const x=value(a),y=value(b);
     if(num){if(isNaN(x)&&isNaN(y))return 0;if(isNaN(x))return 1;if(isNaN(y))return -1;return dir==='asc'?x-y:y-x;}
     return dir==='asc'?String(x).localeCompare(String(y)):String(y).localeCompare(String(x));};
-  models.sort(cmp);refs.sort(cmp);
-  for(const r of [...models,...refs]){body.appendChild(r);const d=document.getElementById('details-'+r.id);if(d)body.appendChild(d);}
+  models.sort(cmp);some.sort(cmp);refs.sort(cmp);
+  for(const r of [...models,...some,...refs]){body.appendChild(r);const d=document.getElementById('details-'+r.id);if(d)body.appendChild(d);}
   refs.forEach((r,i)=>r.classList.toggle('first-reference',i===0));
   document.querySelectorAll('th').forEach(th=>th.classList.remove('sorted-asc','sorted-desc'));
   document.querySelector('th[data-key="'+key+'"]').classList.add('sorted-'+dir);
@@ -130,12 +132,14 @@ def _joint_chart(rows: list[dict]) -> str:
 
 
 def render(rows: list[dict], command: str) -> str:
-    ordered = sorted(rows, key=lambda r: (r.get("kind") == "reference", -r["probe"]["skill"]))
+    # models on every cell, then models on some cells (`bench eval --cells`: skills of other items), then references
+    group = lambda r: 2 if r.get("kind") == "reference" else int(r.get("cells_filter") is not None)  # noqa: E731
+    ordered = sorted(rows, key=lambda r: (group(r), -r["probe"]["skill"]))
     values = [_row_values(r) for r in ordered]
     head = "".join(f'<th data-key="{k}" data-kind="{kind}">{html.escape(h)}</th>' for k, h, kind in COLUMNS)
     body = []
     for r, v in zip(ordered, values):
-        cls = "row reference" if r.get("kind") == "reference" else "row"
+        cls = ("row", "row restricted", "row reference")[group(r)]
         rid = html.escape(r["row_id"])
         body.append(f'<tr class="{cls}" id="{rid}">' + "".join(_cell(k, v) for k, _, _ in COLUMNS) + "</tr>")
         details = {k: r.get(k) for k in ("model", "kind", "file_sha256", "server_model", "suite", "suite_version",
@@ -164,7 +168,7 @@ def render(rows: list[dict], command: str) -> str:
 <p>LLMs as low-level controllers of legged robots. <b>Probe skill</b>: teacher-forced imitation of the seed policy on
 the same items for every model, 1 - error / error of <code>hold</code> (hold 0, oracle 1, below 0 worse than
 freezing); it measures imitation, not control. <b>Closed loop</b>: the paper's protocol (NWT and success over the
-model's 10 s). Intervals are 95%. Reference controllers are set apart below the models. Click a header to sort.</p>
+model's 10 s). Intervals are 95%. Reference controllers are set apart below the models, and a model scored on some cells only (its name says which) below those scored on all. Click a header to sort.</p>
 <table id="board"><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>
 <h2>Charts</h2><div class=charts>{''.join(charts)}{_joint_chart(ordered)}</div>
 <p class=ci>Regenerate: <code>{html.escape(command)}</code>. Each row's own command is in its details.</p>

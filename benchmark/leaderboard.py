@@ -17,13 +17,9 @@ import numpy as np
 
 from benchmark.probe import paired_comparison
 from benchmark.report import to_markdown
-from benchmark.scorecard import DEFAULT_STORE, answers_from_json, load_rows
+from benchmark.scorecard import DEFAULT_STORE, answers_from_json, load_rows, on_some_cells, row_label
 
 REFERENCE_ORDER = ("oracle", "knn", "replay", "hold", "default")
-
-
-def _label(row: dict) -> str:
-    return row["model"] + ("" if row.get("cells_filter") is None else f" ({'+'.join(row['cells_filter'])})")
 
 
 def _closed(row: dict) -> tuple[float | None, float | None, int]:
@@ -41,7 +37,7 @@ def best_rows(rows: list[dict]) -> list[dict]:
     """One row per model and probe: the full tier's where it ran (its probe is the quick tier's), else the quick."""
     best: dict = {}
     for r in rows:
-        key = (_label(r), r.get("file_sha256"), r.get("server_model"), r["probe_digest"], str(r["probe_settings"]))
+        key = (row_label(r), r.get("file_sha256"), r.get("server_model"), r["probe_digest"], str(r["probe_settings"]))
         if key not in best or (r.get("closed_loop") and not best[key].get("closed_loop")):
             best[key] = r
     return list(best.values())
@@ -73,7 +69,7 @@ def headline(rows: list[dict]):
     for r in rows:
         p = r["probe"]
         nwt, success, trials = _closed(r)
-        out.append({"model": _label(r), "kind": r.get("kind"), "params": r.get("parameters") or "-",
+        out.append({"model": row_label(r), "kind": r.get("kind"), "params": r.get("parameters") or "-",
                     "tier": r["tier"], "probe skill [95%]": f"{p['skill']:.3f} [{p['skill_low']:.3f}, "
                                                             f"{p['skill_high']:.3f}]",
                     "error": round(p["error"], 3), "within 1 step": round(p["within_step"], 2),
@@ -85,7 +81,7 @@ def headline(rows: list[dict]):
     if frame.empty:
         return frame
     frame["_ref"] = frame["kind"] == "reference"
-    frame["_restricted"] = [r.get("cells_filter") is not None for r in rows]  # fewer items: not comparable overall
+    frame["_restricted"] = [on_some_cells(r) for r in rows]
     return frame.sort_values(["_ref", "_restricted", "_skill"], ascending=[True, True, False]).drop(
         columns=["_skill", "_ref", "_restricted"])
 
@@ -95,7 +91,7 @@ def per_cell(rows: list[dict]):
 
     out = []
     for r in rows:
-        line = {"model": _label(r), "tier": r["tier"]}
+        line = {"model": row_label(r), "tier": r["tier"]}
         for cell, c in sorted(r["probe"]["cells"].items(), key=lambda kv: _cell_key(kv[0])):
             line[f"skill {cell}"] = round(c["skill"], 3)
         for cell, c in sorted((r.get("closed_loop") or {}).items(), key=lambda kv: _cell_key(kv[0])):
@@ -121,7 +117,7 @@ def comparisons(rows: list[dict]):
     groups: dict = {}
     for r in models:
         key = (r["probe_digest"], str(r["probe_settings"]), str(r.get("cells_filter")))
-        groups.setdefault(key, {})[_label(r)] = answers_from_json(
+        groups.setdefault(key, {})[row_label(r)] = answers_from_json(
             r["probe_items"])
     tables = []
     for answers in groups.values():
@@ -147,8 +143,8 @@ def scatter(rows: list[dict], path: Path) -> Path | None:
     if not points:
         return None
     fig, ax = plt.subplots(figsize=(6, 4.2))
-    for model in dict.fromkeys(_label(p[0]) for p in points):
-        mine = [p for p in points if _label(p[0]) == model]
+    for model in dict.fromkeys(row_label(p[0]) for p in points):
+        mine = [p for p in points if row_label(p[0]) == model]
         xs, ys = [p[2] for p in mine], [p[3] for p in mine]
         if mine[0][0].get("kind") == "reference":  # references hollow, LLMs filled diamonds
             ax.scatter(xs, ys, label=f"{model} (reference)", s=30, facecolors="none",
@@ -171,7 +167,7 @@ def scatter(rows: list[dict], path: Path) -> Path | None:
 def correlation_text(rows: list[dict]) -> str:
     """Whether probe skill predicts closed-loop NWT: over every point, and over the LLMs' points alone."""
     rho, n = rank_correlation(rows)
-    models = sorted({_label(r) for r in rows if r.get("closed_loop")})
+    models = sorted({row_label(r) for r in rows if r.get("closed_loop")})
     text = (f"Spearman's rank correlation of probe skill with closed-loop NWT over the {n} (model, cell) points "
             f"that have both: {rho:.2f}." if rho is not None else "Too few points for a correlation.")
     text += f" The points come from {len(models)} row(s) ({', '.join(models)})."
@@ -211,7 +207,7 @@ def seed_policy_lines(rows: list[dict], store: Path) -> list[str]:
     if robots:
         lines.append("Closed loop: the shipped seed policies are " + ", ".join(
             f"{robot} {shipped_seed_policy_sha256(robot)}" for robot in robots) + ".")
-        earlier = [f"{_label(r)} ({r['tier']}: {', '.join(stale)})" for r in rows
+        earlier = [f"{row_label(r)} ({r['tier']}: {', '.join(stale)})" for r in rows
                    if (stale := stale_seed_policies(r, store))]
         if earlier:
             lines.append("**Ran an earlier seed policy** (its `bench eval` command runs the trials again): "
@@ -246,11 +242,12 @@ def write_leaderboard(store: Path | str = DEFAULT_STORE, out: Path | str = "repo
         lines += ["No scorecards yet: `bench eval --llm knn`."]
     else:
         order = {name: i for i, name in enumerate(table["model"])}
-        shown.sort(key=lambda r: order.get(_label(r), len(order)))
+        shown.sort(key=lambda r: order.get(row_label(r), len(order)))
         lines += [to_markdown(table), "", "A model's quick-tier row is left out here and on the page where its full "
                   "tier ran (the same probe); the store keeps both. A row named with cells in brackets "
                   "(`bench eval --cells`, for a slow model) answered only those cells' probe items: its skill "
-                  "compares with the same cells' column below, not with the overall skills above it.", "", *seed_policy_lines(shown, Path(store)),
+                  "compares with the same cells' column below, not with the overall skills above it.", "",
+                  *seed_policy_lines(shown, Path(store)),
                   "## Per cell", "",
                   to_markdown(per_cell(shown)), ""]
         for comparison in comparisons(rows):

@@ -13,6 +13,7 @@ import json
 
 import numpy as np
 
+from benchmark.scorecard import on_some_cells, row_label
 from robots import CANONICAL_JOINTS
 
 COLUMNS = (  # key, heading, kind ("text" or "number")
@@ -65,8 +66,7 @@ def _row_values(row: dict) -> dict:
     cells = row.get("closed_loop") or {}
     nwt = float(np.mean([c["nwt"] for c in cells.values()])) if cells else None
     success = float(np.mean([c["success"] for c in cells.values()])) if cells else None
-    label = row["model"] + ("" if not row.get("cells_filter") else f" ({'+'.join(row['cells_filter'])})")
-    return {"model": label, "kind": row.get("kind", ""), "params": row.get("parameters") or "-", "tier": row["tier"],
+    return {"model": row_label(row), "kind": row.get("kind", ""), "params": row.get("parameters") or "-", "tier": row["tier"],
             "skill": p["skill"], "skill_ci": (p["skill_low"], p["skill_high"]), "error": p["error"],
             "within": p["within_step"], "failures": p["parse_failures"], "latency": p["latency_median_s"],
             "nwt": nwt, "success": success, "trials": sum(c["trials"] for c in cells.values()) if cells else 0}
@@ -133,7 +133,7 @@ def _joint_chart(rows: list[dict]) -> str:
 
 def render(rows: list[dict], command: str) -> str:
     # models on every cell, then models on some cells (`bench eval --cells`: skills of other items), then references
-    group = lambda r: 2 if r.get("kind") == "reference" else int(r.get("cells_filter") is not None)  # noqa: E731
+    group = lambda r: 2 if r.get("kind") == "reference" else int(on_some_cells(r))  # noqa: E731
     ordered = sorted(rows, key=lambda r: (group(r), -r["probe"]["skill"]))
     values = [_row_values(r) for r in ordered]
     head = "".join(f'<th data-key="{k}" data-kind="{kind}">{html.escape(h)}</th>' for k, h, kind in COLUMNS)

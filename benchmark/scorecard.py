@@ -246,6 +246,16 @@ def evaluate(llm: LLMSettings, tier_name: str = "quick", suite_path: Path | str 
     return row
 
 
+def on_some_cells(row: dict) -> bool:
+    """Whether the row answered only some cells' probe items (`bench eval --cells`): not comparable overall."""
+    return row.get("cells_filter") is not None
+
+
+def row_label(row: dict) -> str:
+    """The row's model name, with its cells in brackets when it was scored on some cells only."""
+    return row["model"] + (f" ({'+'.join(row['cells_filter'])})" if on_some_cells(row) else "")
+
+
 def load_rows(store: Path | str = DEFAULT_STORE) -> list[dict]:
     rows = []
     for path in sorted((Path(store) / "rows").glob("*.json")):

@@ -285,7 +285,8 @@ def train(config: TrainConfig, stop: Callable[[], bool] = lambda: False, command
     log_std = float(np.log(c.exploration_rad / load_robot(robot).action_scale))
     net = list(c.net)
     algorithm = symmetric_ppo(c.mirror_loss) if c.mirror else PPO
-    model = algorithm(symmetric_actor_policy() if c.symmetric_actor else "MlpPolicy", vec, seed=seed, device="cpu", verbose=0, **asdict(c.ppo),
+    policy = symmetric_actor_policy() if c.symmetric_actor else "MlpPolicy"
+    model = algorithm(policy, vec, seed=seed, device="cpu", verbose=0, **asdict(c.ppo),
                 policy_kwargs=dict(net_arch=dict(pi=net, vf=net), activation_fn=nn.ELU, log_std_init=log_std))
     if init_from is not None:
         load_actor_into(model, MlpActor.load(init_from))

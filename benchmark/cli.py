@@ -22,6 +22,8 @@ import sys
 from benchmark import __version__, commands
 from benchmark.cell import CELL_FIELDS, CellSpec, Runtime, setting_fields
 from benchmark.commands import CliError
+from benchmark.interrupt import Interrupted
+from benchmark.llm.models import leave
 from benchmark.policies import POLICIES
 from benchmark.settings import build, choices_of, hints, kind_of
 from benchmark.llm.latency import MODES as LATENCY_MODES
@@ -320,10 +322,13 @@ def main(argv: list[str] | None = None) -> int:
         argv = sys.argv[1:] if argv is None else argv
         args = build_parser().parse_args(argv)
         args.argv = argv  # recorded beside results, to re-run them
-        return dispatch(args)
+        return leave(dispatch(args))
     except (CliError, UnknownNameError, ValueError) as err:
         print(f"bench: error: {err}", file=sys.stderr)
-        return 2
+        return leave(2)
+    except (Interrupted, KeyboardInterrupt):  # a command that says what it kept returns 130 itself
+        print("bench: interrupted: everything finished is stored; run the same command again to resume", file=sys.stderr)
+        return leave(130)
 
 
 if __name__ == "__main__":

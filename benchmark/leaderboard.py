@@ -106,8 +106,8 @@ def per_cell(rows: list[dict]):
     return frame[["model", "tier", *skills, *closed]].fillna("-")
 
 
-def comparisons(rows: list[dict]):
-    """P(row beats column) for every pair of model rows scored on the same probe items and settings.
+def comparisons(rows: list[dict]) -> list[tuple[str, "pd.DataFrame"]]:
+    """(which items, P(row beats column)) for every group of model rows scored on the same probe items and settings.
 
     A row restricted to some cells (`bench eval --cells`) answered fewer items, so it is compared only with
     rows restricted the same way."""
@@ -120,14 +120,15 @@ def comparisons(rows: list[dict]):
         groups.setdefault(key, {})[row_label(r)] = answers_from_json(
             r["probe_items"])
     tables = []
-    for answers in groups.values():
+    for (_, _, cells), answers in groups.items():
         if len(answers) < 2:
             continue
         names = list(answers)
         table = pd.DataFrame(index=names, columns=names, dtype=object)
         for a, b in itertools.permutations(names, 2):
             table.loc[a, b] = f"{paired_comparison(answers[a], answers[b]):.3f}"
-        tables.append(table.fillna("-").reset_index(names="P(row > column)"))
+        items = "all cells' items" if cells == "None" else "the items of " + cells.strip("[]").replace("'", "")
+        tables.append((items, table.fillna("-").reset_index(names="P(row > column)")))
     return tables
 
 
@@ -252,8 +253,8 @@ def write_leaderboard(store: Path | str = DEFAULT_STORE, out: Path | str = "repo
                   *seed_policy_lines(shown, Path(store)),
                   "## Per cell", "",
                   to_markdown(per_cell(shown)), ""]
-        for comparison in comparisons(rows):
-            lines += ["## Paired comparison", "", "The probability, over 2000 bootstrap resamples of the same probe "
+        for items, comparison in comparisons(rows):
+            lines += [f"## Paired comparison on {items}", "", "The probability, over 2000 bootstrap resamples of the same probe "
                       "items, that the row's skill beats the column's; near 0.5 the difference is not real, above "
                       "0.975 or below 0.025 it is.", "", to_markdown(comparison), ""]
         figure = scatter(shown, out / "figures" / "leaderboard_probe_vs_closed_loop.png")

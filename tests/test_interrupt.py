@@ -111,3 +111,50 @@ def test_sigterm_or_sighup_to_bench_view_web_ends_the_viewer(tmp_path, signum):
     time.sleep(3)
     alive = [c for c in viewers if c.is_running() and c.status() != psutil.STATUS_ZOMBIE]
     assert not alive, f"outlived bench view: {[c.cmdline()[:3] for c in alive]}"
+
+
+def test_a_signal_mid_llama_cpp_read_lands_at_once():
+    """llama.cpp releases the GIL while it reads, so a Ctrl-C (here SIGALRM's handler) interrupts the wait within
+    a step instead of after the read; the request is abandoned with its server, for `leave` to end the process."""
+    from benchmark.llm.models import ABANDONED, Constraint, EmbeddedModel, Sampling, settle_abandoned
+
+    model = EmbeddedModel(threads=1, context=8192, draft="none")
+    prompt = " ".join(str(i % 997) for i in range(1000))  # ~4,000 tokens: a cold read of seconds on a fast core
+    fired: list[float] = []
+
+    def interrupt(signum, frame):
+        fired.append(time.monotonic())
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGALRM, interrupt)
+    signal.setitimer(signal.ITIMER_REAL, 0.5)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            model.complete(prompt, Sampling(max_tokens=4), Constraint(), cold=True)
+        landed = time.monotonic()
+        assert fired and landed - fired[0] < 1.0, "the interrupt waited for llama.cpp"
+        assert [not done.is_set() for _, done in ABANDONED] == [True], "the read ended before the signal"
+        assert model._server is None
+        model.close()  # nothing left to stop; must not wait for the read
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, previous)
+        settle_abandoned()
+    assert not ABANDONED
+
+
+def test_ctrl_c_on_bench_eval_mid_probe_exits_130_in_a_line(tmp_path):
+    """`bench eval` had no handler: a Ctrl-C mid-probe waited for llama.cpp, then printed a traceback."""
+    proc = subprocess.Popen([*BENCH, "eval", "--llm", "embedded", "--store", str(tmp_path / "board"), "--threads",
+                             "1", "--no-cache"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    first = proc.stderr.readline()  # printed just before the model loads and the first walk is asked
+    assert first.startswith("bench: probe"), first
+    time.sleep(8.0)  # model loaded, a query in flight (a query is seconds; the rest of the loop microseconds)
+    proc.send_signal(signal.SIGINT)
+    start = time.monotonic()
+    _, err = proc.communicate(timeout=60)
+    took = time.monotonic() - start
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err and err.strip().splitlines()[-1] == (
+        "bench: interrupted: everything finished is stored; run the same command again to resume"), err
+    assert took < 3.0, f"took {took:.1f} s to exit"

@@ -262,6 +262,7 @@ def test_eval_cells_restrict_the_probe_as_well_as_the_closed_loop(tmp_path):
         evaluate(LLMSettings(model=model), "t", suite, tmp_path / "board")
         evaluate(LLMSettings(model=model), "t", suite, tmp_path / "board", cells=("a1/flat",))
     rows = [{**r, "kind": "server"} for r in load_rows(tmp_path / "board")]  # as if they were models
-    tables = comparisons(rows)
-    assert sorted(sorted(t["P(row > column)"]) for t in tables) == [
-        ["hold (a1/flat)", "knn (a1/flat)", "replay (a1/flat)"], ["knn", "replay"]]
+    tables = dict(comparisons(rows))
+    assert {items: sorted(t["P(row > column)"]) for items, t in tables.items()} == {
+        "the items of a1/flat": ["hold (a1/flat)", "knn (a1/flat)", "replay (a1/flat)"],
+        "all cells' items": ["knn", "replay"]}

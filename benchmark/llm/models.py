@@ -90,6 +90,39 @@ def default_threads() -> int:
     return os.cpu_count() or 1
 
 
+WAIT_STEP_S = 0.2  # s between checks for a signal while llama.cpp answers
+# llama.cpp servers let go of during a Ctrl-C or SIGTERM: (server, set when its request ends, or None when idle)
+ABANDONED: list[tuple[object, threading.Event | None]] = []
+
+
+def leave(code: int) -> int:
+    """The exit code, or, if a llama.cpp server was let go of during an interrupt, the end of the process now.
+
+    llama.cpp cannot be stopped mid-read, and xllamacpp's destructor waits for its loop (for ever, if the loop
+    never started), so an ordinary exit would wait minutes for a prompt nobody wants. Everything finished is
+    already stored (each trial, each probe walk, as it ends), so ending here loses nothing."""
+    if any(done is None or not done.is_set() for _, done in ABANDONED):
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    return code
+
+
+def settle_abandoned(timeout_s: float | None = None) -> None:
+    """Wait for abandoned requests to finish and let their servers go (tests; a long-lived process)."""
+    for _, done in ABANDONED:
+        if done is not None:
+            done.wait(timeout_s)
+    ABANDONED[:] = [(s, d) for s, d in ABANDONED if d is None or not d.is_set()]
+
+
+def _interrupted() -> bool:
+    """Whether a Ctrl-C or SIGTERM is propagating through the caller (a `finally` or `__exit__` on its way out)."""
+    from benchmark.interrupt import Interrupted
+
+    return isinstance(sys.exc_info()[1], (KeyboardInterrupt, Interrupted))
+
+
 DRAFTS = ("ngram", "none")  # speculative decoding of the embedded model
 DEFAULT_DRAFT = "ngram"
 DRAFT_TOKENS = 16  # the longest n-gram draft checked at once (a reply is ~56 tokens)
@@ -158,7 +191,7 @@ class EmbeddedModel:
         if constraint.grammar:
             request["grammar"] = constraint.grammar
         start = time.perf_counter()
-        result = self._server.handle_completions(request)
+        result = self._answer(request)
         latency = time.perf_counter() - start
         self._answered = True
         if "error" in result:
@@ -167,11 +200,43 @@ class EmbeddedModel:
         return Reply(result["choices"][0]["text"], usage.get("prompt_tokens", 0), usage.get("completion_tokens", 0),
                      cached_tokens=int(timings.get("cache_n", 0) or 0), latency_s=latency)
 
+    def _answer(self, request: dict) -> dict:
+        """llama.cpp's answer, waited for in WAIT_STEP_S steps. It releases the GIL while it reads and decodes,
+        so Ctrl-C, SIGTERM and SIGHUP reach Python's handlers at once instead of after a read of minutes; a
+        request interrupted so is abandoned with its server (see `leave`)."""
+        server, box, done = self._server, {}, threading.Event()
+
+        def ask() -> None:
+            try:
+                box["result"] = server.handle_completions(request)
+            except Exception as err:  # noqa: BLE001 - re-raised in the caller's thread
+                box["error"] = err
+            finally:
+                done.set()
+
+        # an Event, not Thread.join: a join interrupted by a signal marks the thread finished (CPython 3.11)
+        threading.Thread(target=ask, name="llama.cpp request", daemon=True).start()
+        try:
+            while not done.wait(WAIT_STEP_S):
+                pass
+        except BaseException:
+            if not done.is_set():
+                ABANDONED.append((server, done))
+                self._server = None
+            raise
+        if "error" in box:
+            raise box["error"]
+        return box["result"]
+
     def close(self) -> None:
         """Stop llama.cpp. A server that never answered is first asked for one token: its loop may not
         have started yet, and xllamacpp's stop signal sent before that is lost, leaving the join in
         `Server.__del__` waiting forever (seen under load, right after construction)."""
         if self._server is None:
+            return
+        if _interrupted():  # on the way out: no last request, no waiting for llama.cpp's loop (see leave)
+            ABANDONED.append((self._server, None))
+            self._server = None
             return
         if not self._answered:
             self._server.handle_completions({"prompt": "a", "max_tokens": 1, "cache_prompt": False})

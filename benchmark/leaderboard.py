@@ -165,6 +165,9 @@ def scatter(rows: list[dict], path: Path) -> Path | None:
     return path
 
 
+FEW_MODELS = 5  # below this many LLMs with a closed loop, their correlation is a direction only
+
+
 def correlation_text(rows: list[dict]) -> str:
     """Whether probe skill predicts closed-loop NWT: over every point, and over the LLMs' points alone."""
     rho, n = rank_correlation(rows)
@@ -181,7 +184,7 @@ def correlation_text(rows: list[dict]) -> str:
                        "own: the references' walkers and freezers carry the number above.")
     llms = {r["model"] for r in rows if r.get("kind") != "reference" and r.get("closed_loop")}
     text += f" Over the LLMs' {llm_n} points alone ({len(llms)} model(s)): {llm_rho:.2f}"
-    if len(llms) < 3:
+    if len(llms) < FEW_MODELS:
         return text + (f"; with {len(llms)} model(s) this is a direction, not a measurement: one model's cells differ "
                        "by trial noise, and the rest is which model both imitated and walked better.")
     return text + "."

@@ -266,3 +266,17 @@ def test_eval_cells_restrict_the_probe_as_well_as_the_closed_loop(tmp_path):
     assert {items: sorted(t["P(row > column)"]) for items, t in tables.items()} == {
         "the items of a1/flat": ["hold (a1/flat)", "knn (a1/flat)", "replay (a1/flat)"],
         "all cells' items": ["knn", "replay"]}
+
+
+def test_the_llms_correlation_is_a_direction_until_enough_models_have_a_closed_loop():
+    """Probe skill against NWT over a few LLMs' cells is labelled a direction, not a measurement."""
+    from benchmark.leaderboard import FEW_MODELS, correlation_text
+
+    def row(name, skill, nwt):
+        return {"model": name, "kind": "embedded", "cells_filter": None,
+                "probe": {"cells": {"a1/flat": {"skill": skill}}}, "closed_loop": {"a1/flat": {"nwt": nwt}}}
+
+    few = [row(f"m{i}", 0.1 * i, 0.02 * i) for i in range(FEW_MODELS - 1)]
+    assert "direction, not a measurement" in correlation_text(few) and ": 1.00" in correlation_text(few)
+    enough = few + [row("big", 0.9, 0.5)]
+    assert "direction" not in correlation_text(enough) and correlation_text(enough).endswith(": 1.00.")

@@ -116,7 +116,7 @@ def comparisons(rows: list[dict]) -> list[tuple[str, "pd.DataFrame"]]:
     models = [r for r in rows if r.get("kind") != "reference"]
     groups: dict = {}
     for r in models:
-        key = (r["probe_digest"], str(r["probe_settings"]), str(r.get("cells_filter")))
+        key = (r["probe_digest"], str(r["probe_settings"]), tuple(r.get("cells_filter") or ()))
         groups.setdefault(key, {})[row_label(r)] = answers_from_json(
             r["probe_items"])
     tables = []
@@ -127,7 +127,7 @@ def comparisons(rows: list[dict]) -> list[tuple[str, "pd.DataFrame"]]:
         table = pd.DataFrame(index=names, columns=names, dtype=object)
         for a, b in itertools.permutations(names, 2):
             table.loc[a, b] = f"{paired_comparison(answers[a], answers[b]):.3f}"
-        items = "all cells' items" if cells == "None" else "the items of " + cells.strip("[]").replace("'", "")
+        items = "the items of " + "+".join(cells) if cells else "all cells' items"
         tables.append((items, table.fillna("-").reset_index(names="P(row > column)")))
     return tables
 

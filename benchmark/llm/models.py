@@ -21,6 +21,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Protocol
 
+from benchmark.interrupt import Interrupted
 from benchmark.llm.prompt import LAYOUTS, split_prompt
 
 API_KEY_ENV = ("PROMPTWALK_LLM_API_KEY", "OPENAI_API_KEY")
@@ -118,8 +119,6 @@ def settle_abandoned(timeout_s: float | None = None) -> None:
 
 def _interrupted() -> bool:
     """Whether a Ctrl-C or SIGTERM is propagating through the caller (a `finally` or `__exit__` on its way out)."""
-    from benchmark.interrupt import Interrupted
-
     return isinstance(sys.exc_info()[1], (KeyboardInterrupt, Interrupted))
 
 

@@ -1,12 +1,14 @@
 """Robot descriptions as data: one folder per robot with a `robot.toml` and a URDF.
 
 Everything an engine, a policy or a prompt needs to know about a robot is read from here;
-no other module branches on a robot's name. A robot is named (a folder of this package) or
-given as the path of any folder holding a `robot.toml`: bring your own without editing the package.
+no other module branches on a robot's name. A robot is named (a folder of this package, or one
+that another installed package names in its `promptwalk.robots` entry-point group) or given as the
+path of any folder holding a `robot.toml`: bring your own without editing the package.
 """
 
 from __future__ import annotations
 
+import importlib.metadata
 import tomllib
 from dataclasses import dataclass
 from functools import cache
@@ -97,8 +99,23 @@ def per_joint(value: float | list[float], num_joints: int = len(CANONICAL_JOINTS
     return values
 
 
+ROBOT_PLUGINS = "promptwalk.robots"  # entry-point group: name -> "module:FOLDER", a folder holding robot.toml
+
+
+def plugin_robots() -> dict[str, Path]:
+    """{name: folder} of the robots other installed packages register."""
+    out = {}
+    for point in importlib.metadata.entry_points(group=ROBOT_PLUGINS):
+        try:
+            out[point.name] = Path(point.load())
+        except Exception as err:  # a broken plugin is one line naming it
+            raise ValueError(f"plugin robot '{point.name}' ({point.value}, entry-point group {ROBOT_PLUGINS}) does "
+                             f"not load: {type(err).__name__}: {err}") from None
+    return out
+
+
 def available_robots() -> list[str]:
-    return sorted(p.parent.name for p in ROBOTS_DIR.glob("*/robot.toml"))
+    return sorted({*(p.parent.name for p in ROBOTS_DIR.glob("*/robot.toml")), *plugin_robots()})
 
 
 @cache
@@ -106,9 +123,11 @@ def load_robot(name: str) -> Robot:
     """Read `robots/<name>/robot.toml`, or `<name>/robot.toml` for a folder path; raises
     UnknownNameError or ValueError on bad data."""
     folder = Path(name) if ("/" in name or name.startswith(".")) else ROBOTS_DIR / name
+    if not (folder / "robot.toml").is_file() and folder.parent == ROBOTS_DIR:
+        folder = plugin_robots().get(name, folder)
     path = folder / "robot.toml"
     if not path.is_file():
-        if folder.parent != ROBOTS_DIR:
+        if folder.parent != ROBOTS_DIR and name not in plugin_robots():
             raise UnknownNameError("robot", name, [*available_robots(), "or a folder holding robot.toml"])
         raise UnknownNameError("robot", name, available_robots())
     with path.open("rb") as f:

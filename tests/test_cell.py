@@ -6,8 +6,9 @@ import shutil
 
 import pytest
 
-from benchmark.cell import CellSpec, make_cell, run_cell
-from benchmark.settings import SettingError
+from benchmark.trial.cell import CellSpec, make_cell
+from benchmark.trial.trials import run_cell
+from benchmark.common.settings import SettingError
 from robots import ROBOTS_DIR, load_robot
 
 

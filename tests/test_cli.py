@@ -33,7 +33,7 @@ def test_run_table_is_readable():
 
 def test_list_names_everything():
     from benchmark.llm.models import MODEL_FORMS
-    from benchmark.policies import available_policies
+    from benchmark.trial.registry import available_policies
     from robots import available_robots
     from sims import available_sims
 

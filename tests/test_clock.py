@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from benchmark.cell import KeepPolicy, TrialHooks, make_cell, run_cell
-from benchmark.clock import RealtimeClock, parse_latency
-from benchmark.settings import SettingError
+from benchmark.trial.cell import make_cell
+from benchmark.trial.trials import KeepPolicy, TrialHooks, run_cell
+from benchmark.trial.clock import RealtimeClock, parse_latency
+from benchmark.common.settings import SettingError
 
 LLM_CELL = {"policy": "llm", "history": 10, "duration": 13.0, "llm_after": 10.0}
 SAME = ("nwt", "success", "upright_fraction", "distance_m", "lateral_drift_m", "mean_vx", "heading_change_rad",
@@ -79,7 +80,7 @@ def test_measured_latency_reads_the_prompt_once_before_the_clock_and_never_uses_
                                                                                                monkeypatch):
     """The embedded model on the real clock: an untimed read before the takeover, so the first timed query
     reuses it (reads only what is new); no reply (and its latency) comes from, or goes to, the reply cache."""
-    from benchmark.cell import Resources, Runtime
+    from benchmark.trial.resources import Resources, Runtime
     from benchmark.llm.models import CACHE_ENV
 
     monkeypatch.setenv(CACHE_ENV, str(tmp_path))
@@ -102,7 +103,7 @@ def test_the_real_clock_section_reads_the_committed_realtime_store():
 
     import pandas as pd
 
-    from benchmark.report_latency import realtime_section
+    from benchmark.experiments.report_latency import realtime_section
 
     frame = pd.read_parquet(Path(__file__).parents[1] / "reports" / "data" / "realtime.parquet")
     text = "\n".join(realtime_section(frame))
@@ -117,7 +118,7 @@ def test_a_budget_of_zero_seconds_is_a_budget_not_a_missing_one(budget, says, mo
 
     import pandas as pd
 
-    import benchmark.report_latency as report_latency
+    import benchmark.experiments.report_latency as report_latency
 
     monkeypatch.setattr(report_latency, "seed_policy_budget", lambda robot, terrain: budget)
     frame = pd.read_parquet(Path(__file__).parents[1] / "reports" / "data" / "realtime.parquet")

@@ -8,11 +8,11 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-import benchmark.envs  # noqa: F401  (registers the environments)
-from benchmark.control import ControlLoop
-from benchmark.envs import LocomotionEnv, Randomization
-from benchmark.mlp import MlpActor
-from benchmark.rewards import FeetAirTime, RewardWeights, TurningRate, walking_reward
+import benchmark.training.envs  # noqa: F401  (registers the environments)
+from benchmark.trial.control import ControlLoop
+from benchmark.training.envs import LocomotionEnv, Randomization
+from benchmark.trial.mlp import MlpActor
+from benchmark.training.rewards import FeetAirTime, RewardWeights, TurningRate, walking_reward
 from robots import load_robot
 
 
@@ -109,7 +109,7 @@ def test_the_turning_term_penalizes_turning_against_the_command():
 
 
 def test_smoke_training_writes_a_loadable_policy_and_log(tmp_path):
-    from benchmark.train import TrainConfig, train
+    from benchmark.training.train import TrainConfig, train
 
     path = train(TrainConfig(robot="a1", sim=("mujoco",), steps=4096, seed=0, out=str(tmp_path), eval_every=2048))
     actor = MlpActor.load(path)
@@ -121,7 +121,7 @@ def test_smoke_training_writes_a_loadable_policy_and_log(tmp_path):
 
 
 def test_training_is_deterministic_for_a_seed(tmp_path):
-    from benchmark.train import TrainConfig, train
+    from benchmark.training.train import TrainConfig, train
 
     config = TrainConfig(robot="a1", steps=2048, seed=7, eval_every=10**9)
     a = MlpActor.load(train(TrainConfig(**{**config.__dict__, "out": str(tmp_path / "a")})))

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from benchmark.mlp import MlpActor
-from benchmark.gait import GaitConfig, contact_summary, joint_table, record, summary_row
+from benchmark.trial.mlp import MlpActor
+from benchmark.checks.gait import GaitConfig, contact_summary, joint_table, record, summary_row
 from robots import available_robots, load_robot
 
 # The posture targets of the README's "Seed policies": mean hip abduction within 0.25 rad of default,

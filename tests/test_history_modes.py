@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import pytest
 
-from benchmark.cell import CellSpec, Resources, Runtime, make_cell
+from benchmark.trial.cell import CellSpec, make_cell
+from benchmark.trial.resources import Resources, Runtime
 from benchmark.llm.controller import LLMPolicy, LLMSettings
-from benchmark.settings import SettingError
+from benchmark.common.settings import SettingError
 from robots import load_robot
 
 
@@ -63,7 +64,7 @@ def test_a_trial_answers_the_same_after_another_trial_as_alone():
     previous one's 457-token description and its first reply differed.)"""
     import dataclasses
 
-    from benchmark.cell import KeepPolicy, run_cell
+    from benchmark.trial.trials import KeepPolicy, run_cell
 
     cell = make_cell({"policy": "llm", "history": 10, "llm_after": 2.0, "duration": 2.2})  # shifted, 2 queries
     one_query = dataclasses.replace(cell, duration=2.1)

@@ -12,7 +12,7 @@ from pathlib import Path
 import psutil
 import pytest
 
-from benchmark.store import ResultStore, load_results
+from benchmark.common.store import ResultStore, load_results
 
 SLOW = Path(__file__).parent / "data" / "slow_sweep.toml"
 BENCH = [sys.executable, "-m", "benchmark.cli"]

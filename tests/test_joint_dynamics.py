@@ -8,7 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from benchmark.validate import REFERENCE, ValidateConfig, agreement, validate
+from benchmark.checks.validate import REFERENCE, ValidateConfig, agreement, validate
 from robots import available_robots, load_robot, per_joint
 from sims import available_sims, make_sim
 from sims.base import PhysicsConfig

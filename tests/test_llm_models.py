@@ -14,7 +14,7 @@ from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
 import pytest
 
-from benchmark.cli import main
+from benchmark.cli.main import main
 from benchmark.llm.encodings import ENCODINGS
 from benchmark.llm.models import CachedModel, Constraint, EmbeddedModel, LLMError, OpenAIModel, Sampling, make_model
 from benchmark.llm.prompt import HISTORY_HEADER
@@ -219,7 +219,9 @@ def test_each_server_kind_gets_its_own_documented_constraint(kind, layout, field
 
 
 def test_a_server_that_ignores_the_constraint_is_counted_and_warned_once(tmp_path, capsys):
-    from benchmark.cell import CellSpec, Runtime, Resources, run_cell
+    from benchmark.trial.cell import CellSpec
+    from benchmark.trial.resources import Runtime, Resources
+    from benchmark.trial.trials import run_cell
     from benchmark.llm.controller import LLMSettings
 
     server = CannedServer(text="Sure! Here are some numbers: 1, 2, 3", owned_by="sglang")
@@ -327,7 +329,7 @@ class SlowServer(CannedServer):
 
 
 def _four_trials(tmp_path, url: str, name: str):
-    from benchmark.experiment import load_experiment
+    from benchmark.experiments.experiment import load_experiment
 
     path = tmp_path / f"{name}.toml"
     path.write_text(f'name = "{name}"\nseeds = [0, 1, 2, 3]\n[fixed]\npolicy = "llm"\nmodel = "openai:m"\n'
@@ -338,8 +340,8 @@ def _four_trials(tmp_path, url: str, name: str):
 def test_concurrency_keeps_trials_in_flight_and_the_rate_limit_holds_across_them(tmp_path, monkeypatch):
     """Four LLM trials (12 queries) against a server answering in 0.3 s: two in flight take about half the
     time; with a rate limit, requests stay spaced over both threads."""
-    from benchmark.store import ResultStore
-    from benchmark.sweep import run_sweep
+    from benchmark.common.store import ResultStore
+    from benchmark.experiments.sweep import run_sweep
 
     server = SlowServer(0.3)
     walls = {}

@@ -5,12 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from benchmark.cell import CellSpec, run_cell
+from benchmark.trial.cell import CellSpec
+from benchmark.trial.trials import run_cell
 from benchmark.llm.controller import LLMSettings
 from benchmark.llm.encodings import get_encoding
 from benchmark.llm.reference import HoldModel, KnnModel, OracleModel, ReplayModel, history_pairs
 from benchmark.llm.replies import parse_reply
-from benchmark.runner import Walking, first_stop, walking_metrics
+from benchmark.trial.runner import Walking, first_stop, walking_metrics
 
 DT, PHASE = 0.1, 10.0
 STEPS = int(PHASE / DT)

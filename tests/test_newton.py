@@ -90,8 +90,10 @@ def test_seed_policy_walks_rough_ground_on_newtons_own_contacts(capfd):
     """Newton's CollisionPipeline on the heightfield (the default): the shipped A1 policy walks, and the
     feet it reports on the ground come from Newton's contacts (mujoco_warp's own heightfield contacts
     dropped them and the robots tipped over: mujoco_warp issue #1083)."""
-    from benchmark.cell import CellSpec, Resources, run_cell
-    from benchmark.gait import SubstepTrace
+    from benchmark.trial.cell import CellSpec
+    from benchmark.trial.resources import Resources
+    from benchmark.trial.trials import run_cell
+    from benchmark.checks.gait import SubstepTrace
 
     cell = CellSpec(sim="newton", robot="a1", terrain="rough", policy="rl", duration=6.0)
     inner = make_sim("newton", load_robot("a1"), Terrain("rough"), PhysicsConfig(substeps=1))

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from benchmark.falls import fall_reason
-from benchmark.observation import LLM_OBS_DIM, RL_OBS_DIM, llm_observation, rl_observation
+from benchmark.trial.falls import fall_reason
+from benchmark.trial.observation import LLM_OBS_DIM, RL_OBS_DIM, llm_observation, rl_observation
 from robots import load_robot
 from sims.base import RobotState
 from sims.terrain import Terrain

@@ -7,8 +7,9 @@ import json
 import numpy as np
 import pytest
 
-from benchmark.cell import CellSpec, run_cell
-from benchmark.mlp import MlpActor
+from benchmark.trial.cell import CellSpec
+from benchmark.trial.trials import run_cell
+from benchmark.trial.mlp import MlpActor
 from robots import available_robots, load_robot
 
 
@@ -40,7 +41,7 @@ STRAIGHT = [r for r in available_robots() if MlpActor.load(load_robot(r).folder 
 @pytest.mark.parametrize("robot_name", STRAIGHT)  # policies trained for the fixed command (symmetric inference)
 def test_a_policy_trained_for_the_fixed_command_walks_straight_without_help(robot_name):
     """MuJoCo, flat, 19 s of walking at the fixed command: the straight-walking targets (bench straight)."""
-    from benchmark.straight import TARGETS, StraightConfig, measure
+    from benchmark.checks.straight import TARGETS, StraightConfig, measure
 
     frame, _ = measure(StraightConfig(robot=(robot_name,), sim=("mujoco",), trials=3))
     assert (frame["yaw_rad"].abs() <= TARGETS["abs_yaw_rad"]).all(), frame
@@ -67,7 +68,7 @@ def test_numpy_actor_equals_the_torch_network(tmp_path):
     import torch
     import torch.nn as nn
 
-    from benchmark.train import export_actor
+    from benchmark.training.train import export_actor
 
     class Stub:  # the attribute path export_actor reads from an SB3 model
         class policy:  # noqa: N801
@@ -88,7 +89,8 @@ def test_numpy_actor_equals_the_torch_network(tmp_path):
 
 def test_an_llm_cells_seed_phase_runs_at_the_papers_fixed_command():
     """Every example in the prompt is a function of what the prompt shows: no hidden yaw-rate command."""
-    from benchmark.cell import TrialHooks, make_cell, run_cell
+    from benchmark.trial.cell import make_cell
+    from benchmark.trial.trials import TrialHooks, run_cell
 
     class Commands(TrialHooks):
         seen: list = []

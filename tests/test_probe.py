@@ -12,7 +12,7 @@ import pytest
 
 from benchmark.llm.controller import LLMSettings
 from benchmark.llm.models import Reply, make_model
-from benchmark.probe import (DEFAULT_PROBE, ProbeError, ProbeRun, ProbeSet, ProbeSetConfig, answer_items,
+from benchmark.evaluate.probe import (DEFAULT_PROBE, ProbeError, ProbeRun, ProbeSet, ProbeSetConfig, answer_items,
                              answer_walks, load_probe_set, make_probe_set, paired_comparison, save_probe_set, skill,
                              summarize_answers)
 
@@ -92,7 +92,7 @@ def test_grow_window_shares_the_prefix_and_slide_keeps_the_length(probe):
 
 def test_a_stopped_probe_resumes_walk_by_walk_and_asks_nothing_twice(probe, tmp_path, monkeypatch):
     """A probe of hours (a big model) saves every finished walk; run again, it asks only the rest."""
-    import benchmark.probe as probe_module
+    import benchmark.evaluate.probe as probe_module
 
     asked = []
 
@@ -125,7 +125,7 @@ def test_a_server_answering_garbage_is_parse_failures_not_a_crash(probe):
     try:
         run = dataclasses.replace(_run(items=2), llm=LLMSettings(model="openai:m", url=server.url, history=10),
                                   cells=("a1/flat",))
-        from benchmark.cell import Runtime
+        from benchmark.trial.resources import Runtime
 
         summary = summarize_answers(answer_items(probe, run, Runtime(cache=False)))
     finally:
@@ -220,8 +220,8 @@ def test_the_default_pose_reference_answers_action_zero_in_the_prompts_encoding(
 def test_a_full_tier_row_made_with_another_seed_policy_is_scored_again(tmp_path, monkeypatch, capsys):
     """A closed-loop row records the seed policy its trials ran; once another policy ships, `bench eval` runs
     its trials again (keeping the probe, which the probe set fixes) instead of answering 'already scored'."""
-    import benchmark.sweep as sweep
-    from benchmark.scorecard import evaluate
+    import benchmark.experiments.sweep as sweep
+    from benchmark.evaluate.scorecard import evaluate
 
     suite = tmp_path / "tiny.toml"
     suite.write_text('name = "tiny"\nversion = 1\n[tiers.t]\nprobe = { history = 10, items = 2 }\n'
@@ -234,7 +234,7 @@ def test_a_full_tier_row_made_with_another_seed_policy_is_scored_again(tmp_path,
     assert "not run again" in capsys.readouterr().err
 
     monkeypatch.setattr(sweep, "shipped_seed_policy_sha256", lambda robot: "0123456789ab")
-    from benchmark.leaderboard import write_leaderboard
+    from benchmark.evaluate.leaderboard import write_leaderboard
 
     board, _ = write_leaderboard(store, tmp_path / "out")
     assert "**Ran an earlier seed policy**" in board.read_text() and "hold (t: a1)" in board.read_text()
@@ -247,7 +247,7 @@ def test_a_full_tier_row_made_with_another_seed_policy_is_scored_again(tmp_path,
 
 def test_eval_cells_restrict_the_probe_as_well_as_the_closed_loop(tmp_path):
     """`bench eval --cells a1/flat` (for a slow model) asks the probe's a1/flat items only."""
-    from benchmark.scorecard import evaluate
+    from benchmark.evaluate.scorecard import evaluate
 
     suite = tmp_path / "tiny.toml"
     suite.write_text('name = "tiny"\nversion = 1\n[tiers.t]\nprobe = { history = 10, items = 2 }\n')
@@ -255,8 +255,8 @@ def test_eval_cells_restrict_the_probe_as_well_as_the_closed_loop(tmp_path):
     assert set(row["probe"]["cells"]) == {"a1/flat"} and set(row["probe_items"]["cells"]) == {"a1/flat"}
     assert row["probe"]["items"] == 2 * sum(w.cell == "a1/flat" for w in load_probe_set().walks)
     # Beside rows of every cell, restricted rows are compared only with rows restricted the same way.
-    from benchmark.leaderboard import comparisons
-    from benchmark.scorecard import load_rows
+    from benchmark.evaluate.leaderboard import comparisons
+    from benchmark.evaluate.scorecard import load_rows
 
     for model in ("knn", "replay"):
         evaluate(LLMSettings(model=model), "t", suite, tmp_path / "board")
@@ -270,7 +270,7 @@ def test_eval_cells_restrict_the_probe_as_well_as_the_closed_loop(tmp_path):
 
 def test_the_llms_correlation_is_a_direction_until_enough_models_have_a_closed_loop():
     """Probe skill against NWT over a few LLMs' cells is labelled a direction, not a measurement."""
-    from benchmark.leaderboard import FEW_MODELS, correlation_text
+    from benchmark.evaluate.leaderboard import FEW_MODELS, correlation_text
 
     def row(name, skill, nwt):
         return {"model": name, "kind": "embedded", "cells_filter": None,

@@ -7,12 +7,12 @@ import re
 import sys
 import time
 
-from benchmark.commands import _QueryBar
+from benchmark.cli.trial_commands import _QueryBar
 from benchmark.llm.controller import LLMPolicy, LLMSettings
 from benchmark.llm.models import Reply
 from benchmark.llm.progress import PromptReading, RecentRate
 from benchmark.llm.reference import knn_answer
-from benchmark.runner import EpisodeConfig, run_trial
+from benchmark.trial.runner import EpisodeConfig, run_trial
 from robots import load_robot
 from sims import make_sim
 from sims.terrain import Terrain

@@ -9,9 +9,9 @@ from collections import defaultdict
 import numpy as np
 import pytest
 
-from benchmark.policies import SeedPolicy
-from benchmark.recorder import Recorder, urdf_shapes
-from benchmark.runner import EpisodeConfig, run_trial
+from benchmark.trial.policies import SeedPolicy
+from benchmark.trial.recorder import Recorder, urdf_shapes
+from benchmark.trial.runner import EpisodeConfig, run_trial
 from robots import load_robot
 from sims import available_sims
 

@@ -28,8 +28,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from benchmark.cell import make_cell, run_cell, setting_fields
-from benchmark.fingerprint import fingerprint_id
+from benchmark.trial.cell import make_cell, setting_fields
+from benchmark.trial.trials import run_cell
+from benchmark.common.fingerprint import fingerprint_id
 
 STORE = Path(__file__).parents[1] / "reports" / "data" / "cross_engine.parquet"
 BIT_EXACT_ENGINES = ("mujoco", "pybullet")  # same bits under Haswell/Sandybridge OpenBLAS, numpy X86_V2/V3
@@ -84,7 +85,7 @@ def test_committed_seed_policy_trials_reproduce_at_head():
 
 
 def test_the_statistical_check_flags_a_real_change_and_passes_noise():
-    from benchmark.runner import TrialResult
+    from benchmark.trial.runner import TrialResult
 
     def trials(distances, success=True):
         return [TrialResult(seed=i, nwt=1.0, success=success, upright_fraction=1.0, distance_m=d, lateral_drift_m=0.0,

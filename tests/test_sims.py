@@ -7,8 +7,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from benchmark.policies import SeedPolicy, StandPolicy
-from benchmark.runner import EpisodeConfig, run_trial
+from benchmark.trial.policies import SeedPolicy, StandPolicy
+from benchmark.trial.runner import EpisodeConfig, run_trial
 from robots import LEGS, available_robots, load_robot
 from sims import available_sims, make_sim
 from sims.base import PhysicsConfig, world_to_base, world_to_base_batch

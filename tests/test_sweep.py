@@ -15,10 +15,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from benchmark.experiment import ExperimentError, available_experiments, load_experiment
-from benchmark.report import bar_figure, paper_table, repeated_targets, summary_table, write_reports
-from benchmark.store import ResultStore, load_results
-from benchmark.sweep import run_sweep
+from benchmark.experiments.experiment import ExperimentError, available_experiments, load_experiment
+from benchmark.experiments.report import bar_figure, paper_table, repeated_targets, summary_table, write_reports
+from benchmark.common.store import ResultStore, load_results
+from benchmark.experiments.sweep import run_sweep
 
 TINY = Path(__file__).parent / "data" / "tiny_sweep.toml"
 BENCH = [sys.executable, "-m", "benchmark.cli"]
@@ -158,7 +158,7 @@ def test_rows_carry_parameters_metrics_versions_and_trajectories(uninterrupted):
 
 
 def test_rows_and_reports_say_which_machine_made_them(uninterrupted, tmp_path):
-    from benchmark.fingerprint import fingerprint_id, platform_fingerprint
+    from benchmark.common.fingerprint import fingerprint_id, platform_fingerprint
 
     row = uninterrupted.iloc[0]
     stored = json.loads(row["fingerprint"])
@@ -307,7 +307,7 @@ def test_a_dry_run_counts_trials_of_another_seed_policy_as_missing(tmp_path, cap
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    from benchmark.cli import main
+    from benchmark.cli.main import main
 
     args = ["sweep", str(TINY), "--results", str(tmp_path / "store"), "--set", "duration=0.5", "--seeds", "1",
             "--only", "terrain=flat"]

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 import sims.mujoco
-from benchmark.control import FIXED_COMMAND, ControlLoop
-from benchmark.envs import LocomotionEnv, Randomization
-from benchmark.symmetry import mirror_joints, mirror_rl_observation
+from benchmark.trial.control import FIXED_COMMAND, ControlLoop
+from benchmark.training.envs import LocomotionEnv, Randomization
+from benchmark.trial.symmetry import mirror_joints, mirror_rl_observation
 from robots import available_robots, load_robot
 from sims import make_sim
 from sims.terrain import Terrain
@@ -44,7 +44,7 @@ def test_a_mirrored_action_moves_the_robot_as_its_mirror_image(robot_name, monke
 def test_mirrored_rollout_adds_the_mirror_image_of_every_transition():
     from stable_baselines3 import PPO
 
-    from benchmark.train import mirrored_rollout
+    from benchmark.training.train import mirrored_rollout
 
     env = LocomotionEnv("a1", "mujoco", "flat")
     model = PPO("MlpPolicy", env, n_steps=16, batch_size=16, seed=0, device="cpu")
@@ -80,7 +80,7 @@ def test_straight_episodes_keep_the_papers_fixed_command():
 def test_symmetric_inference_is_exactly_mirror_equivariant(tmp_path):
     import dataclasses
 
-    from benchmark.mlp import MlpActor
+    from benchmark.trial.mlp import MlpActor
 
     actor = MlpActor.load(load_robot("a1").folder / "policy.npz")
     symmetric = dataclasses.replace(actor, meta={**actor.meta, "symmetric": True})
@@ -99,7 +99,7 @@ def test_the_mirror_loss_makes_an_asymmetric_actor_equivariant():
     import torch
     from stable_baselines3.common.policies import ActorCriticPolicy
 
-    from benchmark.train import mirror_loss_step
+    from benchmark.training.train import mirror_loss_step
 
     torch.manual_seed(0)
     policy = ActorCriticPolicy(gym.spaces.Box(-10, 10, (48,)), gym.spaces.Box(-4, 4, (12,)), lambda _: 1e-3)
@@ -117,8 +117,8 @@ def test_a_symmetric_actor_trains_equivariant_and_ships_as_it_trained(tmp_path):
     actor (run with symmetric inference) answers exactly what the trained policy's mean answered."""
     import torch
 
-    from benchmark.mlp import MlpActor
-    from benchmark.train import TrainConfig, symmetric_actor_policy, train
+    from benchmark.trial.mlp import MlpActor
+    from benchmark.training.train import TrainConfig, symmetric_actor_policy, train
 
     path = train(TrainConfig(robot="a1", steps=2048, seed=0, out=str(tmp_path), eval_every=10**9, mirror=False,
                              symmetric_actor=True))

@@ -13,8 +13,10 @@ import sys
 from dataclasses import dataclass, field, replace
 import numpy as np
 
-from benchmark.cell import CellSpec, KeepPolicy, Resources, Runtime, run_cell
-from benchmark.clock import CLOCKS, MEASURED, RealtimeClock, parse_latency
+from benchmark.trial.cell import CellSpec
+from benchmark.trial.resources import Resources, Runtime
+from benchmark.trial.trials import KeepPolicy, run_cell
+from benchmark.trial.clock import CLOCKS, MEASURED, RealtimeClock, parse_latency
 from benchmark.llm.encodings import DEFAULT_ENCODING, ENCODINGS, get_encoding
 from benchmark.llm.models import (MODEL_FORMS, SERVER_KINDS, LanguageModel, Reply, Sampling,
                                    check_model_spec, make_model)
@@ -24,9 +26,9 @@ from benchmark.llm.prompt_inputs import DEFAULT_OBSERVATION, OBSERVATIONS
 from benchmark.llm.reference import knn_answer
 from benchmark.llm.replies import parse_reply, reply_constraint
 from benchmark.llm.tokens import gpt4_tokens
-from benchmark.observation import llm_observation
-from benchmark.policies import SeedPolicy
-from benchmark.settings import SettingError, setting
+from benchmark.trial.observation import llm_observation
+from benchmark.trial.policies import SeedPolicy
+from benchmark.common.settings import SettingError, setting
 from robots import Robot
 from sims.base import PhysicsConfig, RobotState
 

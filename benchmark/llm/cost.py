@@ -15,7 +15,7 @@ from functools import cache
 
 import numpy as np
 
-from benchmark.cell import CellSpec
+from benchmark.trial.cell import CellSpec
 from benchmark.llm.controller import CONTROL_DT, takeover_prompt
 from benchmark.llm.encodings import get_encoding
 from benchmark.llm.prompt import split_prompt

@@ -28,7 +28,9 @@ import time
 import numpy as np
 from tqdm import tqdm
 
-from benchmark.cell import CellSpec, KeepPolicy, Resources, Runtime, run_cell
+from benchmark.trial.cell import CellSpec
+from benchmark.trial.resources import Resources, Runtime
+from benchmark.trial.trials import KeepPolicy, run_cell
 from benchmark.llm.controller import CONTROL_DT, LLMSettings
 from benchmark.llm.replies import parse_reply
 

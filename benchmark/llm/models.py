@@ -17,11 +17,14 @@ import re
 import sys
 import threading
 import time
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Protocol
 
-from benchmark.interrupt import Interrupted
+from benchmark.common.interrupt import Interrupted
+from benchmark.trial.resources import DEFAULT_DRAFT, DRAFTS
+from sims import PluginTable
 from benchmark.llm.prompt import LAYOUTS, split_prompt
 
 API_KEY_ENV = ("PROMPTWALK_LLM_API_KEY", "OPENAI_API_KEY")
@@ -122,8 +125,6 @@ def _interrupted() -> bool:
     return isinstance(sys.exc_info()[1], (KeyboardInterrupt, Interrupted))
 
 
-DRAFTS = ("ngram", "none")  # speculative decoding of the embedded model
-DEFAULT_DRAFT = "ngram"
 DRAFT_TOKENS = 16  # the longest n-gram draft checked at once (a reply is ~56 tokens)
 
 
@@ -404,8 +405,9 @@ class CachedModel:
         self.inner.close()
 
 
-# Model kinds by entry point: a spec is KIND or KIND:NAME. A new kind is one class plus one line.
-MODELS: dict[str, str] = {
+# Model kinds by entry point: a spec is KIND or KIND:NAME. A new kind is one class plus one line, or, from another
+# installed package, one entry point "module:Class" in its `promptwalk.models` group (KIND and KIND:ANYTHING).
+MODELS: Mapping[str, str] = PluginTable({
     "embedded": "benchmark.llm.models:EmbeddedModel",
     "openai": "benchmark.llm.models:OpenAIModel",
     "hold": "benchmark.llm.reference:HoldModel",
@@ -413,9 +415,14 @@ MODELS: dict[str, str] = {
     "knn": "benchmark.llm.reference:KnnModel",
     "replay": "benchmark.llm.reference:ReplayModel",
     "oracle": "benchmark.llm.reference:OracleModel",
-}
+}, "promptwalk.models", "model", record=lambda point: point.value)
 MODEL_FORMS = ("embedded", "embedded:PATH.gguf", "openai:MODEL", "hold", "default", "knn", "replay", "oracle",
                "a ladder name (bench models)")
+
+
+def model_forms() -> list[str]:
+    """Every model spec form: the built-in ones, then installed plugins' kinds."""
+    return [*MODEL_FORMS, *MODELS.plugins()]
 
 
 def check_model_spec(spec: str) -> None:
@@ -429,8 +436,9 @@ def check_model_spec(spec: str) -> None:
             ladder.resolve(spec)  # raises the line that says how to get it
         return
     kind, _, name = spec.partition(":")
-    if kind not in MODELS or (kind == "openai" and not name) or (kind not in ("embedded", "openai") and name):
-        raise ValueError(f"unknown model '{spec}'; valid: {', '.join(MODEL_FORMS)}; ladder: {', '.join(ladder.LADDER)}")
+    plugin = kind in MODELS.plugins()
+    if kind not in MODELS or (kind == "openai" and not name) or (kind not in ("embedded", "openai") and name and not plugin):
+        raise ValueError(f"unknown model '{spec}'; valid: {', '.join(model_forms())}; ladder: {', '.join(ladder.LADDER)}")
     if kind == "embedded" and name:
         if not Path(name).is_file():
             raise ValueError(f"model file '{name}' not found; pass a local .gguf path or use 'embedded'")

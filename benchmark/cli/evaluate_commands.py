@@ -25,7 +25,7 @@ def cmd_probe(args, llm_values: dict, run_values: dict, runtime: Runtime) -> int
         save_probe_set,
         summarize_answers,
     )
-    from benchmark.llm.controller import LLMSettings
+    from benchmark.llm.controller import LLMSettings, strategy_label
 
     if args.make:
         probe = make_probe_set(progress=lambda line: print(f"bench: {line}", file=sys.stderr, flush=True))
@@ -45,7 +45,7 @@ def cmd_probe(args, llm_values: dict, run_values: dict, runtime: Runtime) -> int
     if args.json:
         print(json.dumps(summary))
         return 0
-    print(f"probe {probe.digest}: {llm.model}, history {llm.history} ({run.window}), {llm.encoding}, "
+    print(f"probe {probe.digest}: {llm.model}, {strategy_label(llm)}, history {llm.history} ({run.window}), {llm.encoding}, "
           f"{llm.observation}: {summary['items']} items in {summary['wall_s']:.0f} s")
     print(f"{'cell':<14}{'items':>6}{'error':>8}{'skill':>8}{'within 1 step':>15}")
     for cell, c in summary["cells"].items():
@@ -53,6 +53,11 @@ def cmd_probe(args, llm_values: dict, run_values: dict, runtime: Runtime) -> int
     print(f"{'all':<14}{summary['items']:>6}{summary['error']:>8.3f}{summary['skill']:>8.3f}"
           f"{summary['within_step']:>15.2f}   skill 95% [{summary['skill_low']:.3f}, {summary['skill_high']:.3f}], "
           f"{summary['parse_failures']} parse failures, median {summary['latency_median_s']:.2f} s a query")
+    same = summary.get("same_prompt")
+    if same:
+        print(f"same prompt's trivial answers: hold (its last example line) skill {same['hold_skill']:.3f}, knn "
+              f"{same['knn_skill']:.3f}; gain over {same['best']}: {same['gain']:+.3f} "
+              f"[{same['gain_low']:+.3f}, {same['gain_high']:+.3f}]")
     return 0
 
 

@@ -22,7 +22,7 @@ from benchmark.checks.straight import StraightConfig
 from benchmark.checks.validate import ValidateConfig
 from benchmark.cli.options import _cell_options, _doc, _number, _Parser, add_fields
 from benchmark.evaluate.probe import ProbeRun
-from benchmark.llm.controller import LLMSettings
+from benchmark.llm.controller import STRATEGY_FIELDS, LLMSettings
 from benchmark.llm.latency import MODES as LATENCY_MODES
 from benchmark.training.train import TrainConfig
 from benchmark.trial.registry import POLICIES
@@ -167,7 +167,7 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate = sub.add_parser("eval", help="one model's scorecard: a tier of the standard suite into the "
                                            "leaderboard store (resumable)", description=_doc("benchmark.evaluate.scorecard"),
                               formatter_class=fmt)
-    add_fields(evaluate, LLMSettings, ["model", "url", "server"])
+    add_fields(evaluate, LLMSettings, ["model", "url", "server", *STRATEGY_FIELDS])
     evaluate.add_argument("--tier", default="quick", help="a tier of the suite: quick (the probe, all four cells) "
                           "or full (probe and closed loop) (default quick)")
     evaluate.add_argument("--cells", nargs="+", default=None, metavar="ROBOT/TERRAIN",
@@ -190,8 +190,8 @@ def build_parser() -> argparse.ArgumentParser:
     probe.add_argument("--out", default=None, help="where --make writes (default: the shipped probe set's path)")
     probe.add_argument("--probe", default=None, help="a probe set .npz (default: the shipped one)")
     probe.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
-    add_fields(probe, LLMSettings, ["model", "url", "layout", "server", "history", "prompt_parts", "encoding",
-                                    "observation", "constrained", "temperature"])
+    add_fields(probe, LLMSettings, ["model", "url", "layout", "server", "history", *STRATEGY_FIELDS, "prompt_parts",
+                                    "encoding", "observation", "constrained", "temperature"])
     add_fields(probe, ProbeRun)
     probe.add_argument("--cells", nargs="+", default=None, metavar="ROBOT/TERRAIN", help="only these cells")
     probe_rt = probe.add_argument_group("how the LLM runs (not part of a result's identity)")

@@ -47,6 +47,7 @@ from benchmark.common.settings import SettingError, setting
 from benchmark.llm.controller import CONTROL_DT, LLMSettings, _new_model
 from benchmark.llm.encodings import get_encoding
 from benchmark.llm.prompt import build_prompt, describe_robot
+from benchmark.llm.reference import HoldModel, knn_answer
 from benchmark.llm.replies import parse_reply, reply_constraint
 from benchmark.trial.cell import make_cell
 from benchmark.trial.observation import llm_observation
@@ -223,6 +224,9 @@ class ItemAnswers:
     completion_tokens: np.ndarray
     latency_s: np.ndarray
     wall_s: float = 0.0
+    # the same prompt's trivial answers: its last example line (`hold` on this prompt) and `knn` on its examples
+    prompt_hold_errors: np.ndarray | None = None
+    prompt_knn_errors: np.ndarray | None = None
 
     def to_json(self, fields: tuple[str, ...] | None = None, digits: int | None = None) -> dict:
         """The named fields (default all) as JSON values, float arrays rounded to `digits` if given."""
@@ -231,6 +235,8 @@ class ItemAnswers:
             if fields is not None and f.name not in fields:
                 continue
             value = getattr(self, f.name)
+            if value is None:
+                continue
             if isinstance(value, np.ndarray):
                 value = (value.round(digits) if digits is not None and value.dtype.kind == "f" else value).tolist()
             out[f.name] = value
@@ -240,15 +246,18 @@ class ItemAnswers:
     def from_json(cls, d: dict) -> ItemAnswers:
         """Answers from `to_json`; fields a compact record left out are zeros."""
         n = len(d["cells"])
+        optional = ("prompt_hold_errors", "prompt_knn_errors")
         arrays = {f.name: np.array(d[f.name], dtype=bool if f.name in ("within_step", "parsed") else float)
-                  if f.name in d else np.zeros((n, 12) if f.name == "joint_errors" else n)
+                  if f.name in d else (None if f.name in optional else np.zeros((n, 12) if f.name == "joint_errors"
+                                                                                else n))
                   for f in dataclasses.fields(cls) if f.name not in ("cells", "wall_s")}
         arrays["joint_errors"] = arrays["joint_errors"].reshape(-1, 12)
         return cls(list(d["cells"]), wall_s=float(d.get("wall_s", 0.0)), **arrays)
 
 
 def _prompts(probe: ProbeSet, run: ProbeRun):
-    """(walk, item index, history pairs, current observation, label) for every item, walk by walk."""
+    """(walk, item index, history pairs, demonstrations, current observation, label) for every item, walk by walk.
+    The demonstrations are the walk's pairs before its first item (the takeover), as in closed loop."""
     h = run.llm.history
     for walk in probe.walks:
         if run.cells is not None and walk.cell not in run.cells:
@@ -260,7 +269,8 @@ def _prompts(probe: ProbeSet, run: ProbeRun):
                 raise SettingError(f"history {h} needs {h} pairs before the takeover; the probe set holds "
                                    f"{walk.first_item}")
             history = list(zip(walk.observations[begin:k], walk.actions[begin:k])) if h else []
-            yield walk, k, history, walk.observations[k], walk.actions[k]
+            demonstrations = tuple(zip(walk.observations[:walk.first_item], walk.actions[:walk.first_item]))
+            yield walk, k, history, demonstrations, walk.observations[k], walk.actions[k]
 
 
 def probe_model(run: ProbeRun, runtime: Runtime = Runtime()):
@@ -279,15 +289,16 @@ def answer_items(probe: ProbeSet, run: ProbeRun, runtime: Runtime = Runtime(), m
     total = sum(1 for _ in _prompts(probe, run))
     rows, started, per_robot, last_walk = [], time.perf_counter(), {}, None
     try:
-        for walk, k, history, obs, label in _prompts(probe, run):
+        for walk, k, history, demonstrations, obs, label in _prompts(probe, run):
             if walk.robot not in per_robot:  # description and constraint: once per robot, as in closed loop
                 robot = load_robot(walk.robot)
                 per_robot[walk.robot] = (describe_robot(robot, s.prompt, control_hz=1.0 / CONTROL_DT),
                                          reply_constraint(enc, robot.num_joints, s.constrained), robot.num_joints)
             description, constraint, n = per_robot[walk.robot]
-            prompt = build_prompt(description, history, obs, s.prompt)
+            prompt = build_prompt(description, history, obs, s.prompt, demonstrations)
             target = enc.quantize(label)
             held_q = enc.quantize(history[-1][1] if history else np.zeros(n))
+            trivial = [_decoded_or(text, enc, n, held_q) for text in (HoldModel().reply_to(prompt), knn_answer(prompt))]
             if getattr(model, "privileged", False):
                 model.set_reference(label, enc)
             reply = model.complete(prompt, s.sampling, constraint, cold=walk is not last_walk)
@@ -297,17 +308,24 @@ def answer_items(probe: ProbeSet, run: ProbeRun, runtime: Runtime = Runtime(), m
             diff = np.abs(answer - target)
             rows.append((walk.cell, diff.mean(), np.abs(held_q - target).mean(), diff,
                          bool(np.all(diff <= enc.resolution + 1e-9)), action is not None, reply.prompt_tokens,
-                         reply.completion_tokens, reply.latency_s))
+                         reply.completion_tokens, reply.latency_s, *(np.abs(a - target).mean() for a in trivial)))
             if progress is not None:
                 progress(len(rows), total)
     finally:
         if owned:
             model.close()
-    cols = list(zip(*rows)) if rows else [[]] * 9
+    cols = list(zip(*rows)) if rows else [[]] * 11
     return ItemAnswers(list(cols[0]), np.array(cols[1]), np.array(cols[2]), np.array(cols[3]).reshape(-1, 12),
                        np.array(cols[4], dtype=bool), np.array(cols[5], dtype=bool), np.array(cols[6], dtype=float),
                        np.array(cols[7], dtype=float), np.array(cols[8], dtype=float),
-                       wall_s=time.perf_counter() - started)
+                       wall_s=time.perf_counter() - started, prompt_hold_errors=np.array(cols[9], dtype=float),
+                       prompt_knn_errors=np.array(cols[10], dtype=float))
+
+
+def _decoded_or(text: str, enc, n: int, fallback: np.ndarray) -> np.ndarray:
+    """A reference answer's text decoded, or `fallback` (the held action) when it does not parse."""
+    action = parse_reply(text, enc, n)
+    return action if action is not None else fallback
 
 
 def concat_answers(parts: list[ItemAnswers]) -> ItemAnswers:
@@ -315,10 +333,12 @@ def concat_answers(parts: list[ItemAnswers]) -> ItemAnswers:
     if not parts:
         return ItemAnswers([], *(np.zeros(0) for _ in range(2)), np.zeros((0, 12)), np.zeros(0, bool),
                            np.zeros(0, bool), *(np.zeros(0) for _ in range(3)))
+    optional = {f: np.concatenate([getattr(a, f) for a in parts]) for f in ("prompt_hold_errors", "prompt_knn_errors")
+                if all(getattr(a, f) is not None for a in parts)}
     return ItemAnswers(sum((a.cells for a in parts), []),
                        *(np.concatenate([getattr(a, f) for a in parts]) for f in
                          ("errors", "hold_errors", "joint_errors", "within_step", "parsed", "prompt_tokens",
-                          "completion_tokens", "latency_s")), wall_s=sum(a.wall_s for a in parts))
+                          "completion_tokens", "latency_s")), wall_s=sum(a.wall_s for a in parts), **optional)
 
 
 def answer_walks(probe: ProbeSet, run: ProbeRun, runtime: Runtime = Runtime(), partial: Path | None = None,
@@ -404,7 +424,25 @@ def summarize_answers(answers: ItemAnswers) -> dict:
     out["cells"] = {c: {"items": int((cells == c).sum()), "error": float(answers.errors[cells == c].mean()),
                         "skill": skill(answers.errors[cells == c], answers.hold_errors[cells == c], cells[cells == c]),
                         "within_step": float(answers.within_step[cells == c].mean())} for c in dict.fromkeys(cells)}
+    if answers.prompt_hold_errors is not None and answers.prompt_knn_errors is not None:
+        out["same_prompt"] = same_prompt_gain(answers)
     return out
+
+
+def same_prompt_gain(answers: ItemAnswers, seed: int = 0) -> dict:
+    """The prompt's own trivial answers (its last example line, `hold`; `knn` on its examples), scored as skill on
+    the same items, and the model's gain over the better of the two with a paired 95% bootstrap interval. A gain
+    at or below 0 says the prompt, not the model, carries the imitation."""
+    cells = np.array(answers.cells)
+    trivial = {"hold": answers.prompt_hold_errors, "knn": answers.prompt_knn_errors}
+    skills = {name: skill(e, answers.hold_errors, cells) for name, e in trivial.items()}
+    best = max(skills, key=lambda name: skills[name])
+    model = skill(answers.errors, answers.hold_errors, cells)
+    draws = [skill(answers.errors[i], answers.hold_errors[i], cells[i])
+             - skill(trivial[best][i], answers.hold_errors[i], cells[i]) for i in _resamples(cells, seed)]
+    low, high = np.percentile(draws, [2.5, 97.5])
+    return {"hold_skill": skills["hold"], "knn_skill": skills["knn"], "best": best,
+            "gain": model - skills[best], "gain_low": float(low), "gain_high": float(high)}
 
 
 def print_progress(done: int, total: int, every: int = 10) -> None:

@@ -23,7 +23,8 @@ from benchmark.llm.models import (MODEL_FORMS, SERVER_KINDS, LanguageModel, Repl
 from benchmark.llm.progress import PromptReading
 from benchmark.llm.prompt import LAYOUTS, PARTS, PromptConfig, build_prompt, describe_robot
 from benchmark.llm.prompt_inputs import DEFAULT_OBSERVATION, OBSERVATIONS
-from benchmark.llm.reference import knn_answer
+from benchmark.llm.reference import history_outputs, knn_answer
+from benchmark.llm.strategies import DEFAULT_STRATEGY, DISTANCES, MEMORIES, STRATEGIES
 from benchmark.llm.replies import parse_reply, reply_constraint
 from benchmark.llm.tokens import gpt4_tokens
 from benchmark.trial.observation import llm_observation
@@ -38,6 +39,7 @@ APPROXIMATE_MODES = ("shifted",)
 SHIFT_CHUNK = 64  # tokens: llama.cpp's n_cache_reuse, the smallest cached chunk it moves instead of recomputing
 CONTROL_DT = PhysicsConfig().control_dt  # s, the 10 Hz control period every engine runs
 REFERENCE_KINDS = ("hold", "default", "knn", "replay", "oracle")
+STRATEGY_FIELDS = ("prompt_strategy", "retrieve_k", "memory", "distance")  # LLMSettings that shape the examples
 
 
 def is_embedded(model: str) -> bool:
@@ -68,6 +70,15 @@ class LLMSettings:
                                         "shifting, APPROXIMATE (cached keys/values keep the dropped pair in "
                                         "context), embedded models only; auto: shifted for embedded models, "
                                         "sliding for the others", choices=HISTORY_MODES)
+    prompt_strategy: str = setting(DEFAULT_STRATEGY, "which examples the prompt shows above the current input: "
+                                   + "; ".join(f"{s.name}: {s.help}" for s in STRATEGIES.values()),
+                                   choices=tuple(STRATEGIES), flag="--prompt-strategy", noun="prompt strategy")
+    retrieve_k: int = setting(3, "pairs a retrieving strategy (nearest, nearest-only) shows", positive=True)
+    memory: str = setting("demonstrations", "what retrieval reads: demonstrations (every seed-policy pair before the "
+                                            "takeover, fixed for the trial), window (the pairs shown) or both",
+                          choices=MEMORIES)
+    distance: str = setting("l2", "retrieval's distance on the written inputs: l2 (squared Euclidean, as knn) or l1",
+                            choices=DISTANCES)
     prompt_parts: tuple[str, ...] = setting(PARTS, "description parts", choices=PARTS)
     encoding: str = setting(DEFAULT_ENCODING, "numbers: " + "; ".join(f"{k} {e.title}" for k, e in ENCODINGS.items()),
                             choices=tuple(ENCODINGS))
@@ -96,7 +107,8 @@ class LLMSettings:
     @property
     def prompt(self) -> PromptConfig:
         return PromptConfig(parts=self.prompt_parts, history=self.history, encoding=self.encoding,
-                            observation=self.observation)
+                            observation=self.observation, strategy=self.prompt_strategy, k=self.retrieve_k,
+                            memory=self.memory, distance=self.distance)
 
     @property
     def sampling(self) -> Sampling:
@@ -143,11 +155,14 @@ class Query:
     parsed: bool
     gpt4_in: int
     gpt4_out: int
+    action: np.ndarray | None = None  # the decoded reply (None: it did not parse)
+    seed_action: np.ndarray | None = None  # the seed policy's action for the same state (never shown to the model)
 
 
 @dataclass
 class _Trial:
     history: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
+    demonstrations: tuple[tuple[np.ndarray, np.ndarray], ...] = ()  # the seed policy's pairs, frozen at the takeover
     window_start: int = 0
     queries: list[Query] = field(default_factory=list)
     last_action: np.ndarray | None = None
@@ -229,7 +244,7 @@ class LLMPolicy:
         """Read the prompt of the last step before the takeover, untimed, and drop the reply: a deployed controller
         reads its description and history while the seed policy walks, so the first timed query, like every
         later one, reads only what is new (otherwise it would read the whole ~10k-token prompt cold)."""
-        prompt = build_prompt(self.description, self._window(), llm_obs, self.settings.prompt)
+        prompt = build_prompt(self.description, self._window(), llm_obs, self.settings.prompt, tuple(self._trial.history))
         self._trial.warmup_s = self._complete(prompt, cold=True).latency_s
 
     def _complete(self, prompt: str, cold: bool) -> Reply:
@@ -245,7 +260,9 @@ class LLMPolicy:
 
     def _query(self, llm_obs: np.ndarray, now: float) -> np.ndarray:
         t = self._trial
-        prompt = build_prompt(self.description, self._window(), llm_obs, self.settings.prompt)
+        if not t.queries:  # the takeover: what the seed policy demonstrated, and nothing after it
+            t.demonstrations = tuple(t.history)
+        prompt = build_prompt(self.description, self._window(), llm_obs, self.settings.prompt, t.demonstrations)
         self.last_prompt = prompt
         if getattr(self.model, "privileged", False):  # the oracle reference model: the seed policy's answer
             self.model.set_reference(self.seed_action, self.encoding)
@@ -259,7 +276,8 @@ class LLMPolicy:
         knn = parse_reply(knn_answer(prompt), self.encoding, self.robot.num_joints)
         t.knn_agree += int(action is not None and knn is not None
                            and bool(np.all(np.abs(action - knn) <= self.encoding.resolution + 1e-9)))
-        t.queries.append(Query(now, prompt, reply, action is not None, gpt4_tokens(prompt), gpt4_tokens(reply.text)))
+        t.queries.append(Query(now, prompt, reply, action is not None, gpt4_tokens(prompt), gpt4_tokens(reply.text),
+                               action=action, seed_action=self.seed_action.copy()))
         return action if action is not None else t.last_action  # unparseable: hold the last action
 
     @property
@@ -294,6 +312,7 @@ class LLMPolicy:
             "knn_agreement": self._trial.knn_agree / len(q),
             "approximate_history": self.settings.approximate,
             "clock": self.settings.clock,
+            **closed_loop_diagnostics(q, self._trial.demonstrations, self.encoding),
         }
         if self._trial.clock is not None:
             out.update(self._trial.clock.metrics())
@@ -309,6 +328,55 @@ class LLMPolicy:
     def close(self) -> None:
         if self._owns_model:
             self.model.close()
+
+
+def strategy_label(settings: LLMSettings) -> str:
+    """The prompt strategy as reports name it: `nearest (K 3, demonstrations, l2)`; the paper's is `chronological`."""
+    s = settings
+    if not STRATEGIES[s.prompt_strategy].retrieves:
+        return s.prompt_strategy
+    return f"{s.prompt_strategy} (K {s.retrieve_k}, {s.memory}, {s.distance})"
+
+
+def closed_loop_diagnostics(queries: list[Query], demonstrations, enc) -> dict:
+    """Whether a model freezes, copies or drifts: per trial, the fraction of replies that repeat the action
+    before them or copy an example line of their prompt verbatim, and each reply's distance (mean absolute,
+    action units, as written) from the nearest demonstration action and from the seed policy's action for the
+    same state (the oracle, computed alongside). The per-query series (decoded replies, seed actions) are kept
+    for figures. An unparsed reply counts as the held action it became."""
+    demo = np.array([enc.quantize(a) for _, a in demonstrations]) if demonstrations else None
+    previous = enc.quantize(demonstrations[-1][1]) if demonstrations else None
+    repeats = copies = 0
+    to_demo, to_seed, llm_series, seed_series = [], [], [], []
+    for q in queries:
+        answer = enc.quantize(q.action) if q.action is not None else previous
+        seed = enc.quantize(q.seed_action)
+        if previous is not None and answer is not None and np.allclose(answer, previous, atol=enc.resolution / 2):
+            repeats += 1
+        written = parse_reply_list(q.reply.text)
+        copies += int(written is not None and written in {_normal(o) for o in history_outputs(q.prompt)})
+        if answer is not None:
+            if demo is not None:
+                to_demo.append(float(np.abs(demo - answer).mean(axis=1).min()))
+            to_seed.append(float(np.abs(answer - seed).mean()))
+            llm_series.append([round(float(v), 4) for v in answer])
+            seed_series.append([round(float(v), 4) for v in seed])
+        previous = answer
+    n = max(len(queries), 1)
+    return {"repeat_fraction": repeats / n, "copy_fraction": copies / n,
+            "demo_distance_mean": float(np.mean(to_demo)) if to_demo else None,
+            "oracle_distance_mean": float(np.mean(to_seed)) if to_seed else None,
+            "diag_llm_actions": llm_series, "diag_seed_actions": seed_series}
+
+
+def _normal(text: str) -> str:
+    return "".join(text.split())
+
+
+def parse_reply_list(text: str) -> str | None:
+    """The bracketed list a reply writes, without spaces (to compare with the prompt's example lines)."""
+    start, end = text.find("["), text.find("]")
+    return _normal(text[start:end + 1]) if 0 <= start < end else None
 
 
 def _new_model(settings: LLMSettings, runtime: Runtime) -> LanguageModel:

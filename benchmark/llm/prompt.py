@@ -15,11 +15,20 @@ import numpy as np
 
 from benchmark.llm.encodings import DEFAULT_ENCODING, Encoding, get_encoding
 from benchmark.llm.prompt_inputs import DEFAULT_OBSERVATION, describe, select
-from robots import LEGS, Robot
+from benchmark.llm.strategies import (
+    DEFAULT_STRATEGY,
+    DISTANCES,
+    EXAMPLE_HEADERS,
+    HISTORY_HEADER,  # noqa: F401  (the chronological header, imported from here)
+    MEMORIES,
+    STRATEGIES,
+    Pair,
+    render_history,
+)
+from robots import LEGS, Robot, UnknownNameError
 
 PARTS = ("task", "io", "joints", "pipeline", "illustration")
 LAYOUTS = ("completions", "chat")  # one text; or the description as the system message (the paper's code)
-HISTORY_HEADER = "Recent inputs and the outputs that kept the robot walking:"
 ROLE_NAMES = ("hip abduction", "thigh", "calf")
 
 
@@ -29,6 +38,10 @@ class PromptConfig:
     history: int = 50  # observation/action pairs shown
     encoding: str = DEFAULT_ENCODING
     observation: str = DEFAULT_OBSERVATION
+    strategy: str = DEFAULT_STRATEGY  # benchmark.llm.strategies
+    k: int = 3  # retrieved pairs (strategies that retrieve)
+    memory: str = "demonstrations"  # what retrieval reads: demonstrations, window or both
+    distance: str = "l2"  # on the written inputs: l2 (squared Euclidean) or l1
 
     def __post_init__(self) -> None:
         unknown = [p for p in self.parts if p not in PARTS]
@@ -38,6 +51,14 @@ class PromptConfig:
             raise ValueError(f"history must be >= 0 pairs, got {self.history}")
         get_encoding(self.encoding)
         select(self.observation)
+        if self.strategy not in STRATEGIES:
+            raise UnknownNameError("prompt strategy", self.strategy, list(STRATEGIES))
+        if self.memory not in MEMORIES:
+            raise UnknownNameError("memory", self.memory, list(MEMORIES))
+        if self.distance not in DISTANCES:
+            raise UnknownNameError("distance", self.distance, list(DISTANCES))
+        if self.k < 1:
+            raise ValueError(f"retrieve_k must be >= 1 pair, got {self.k}")
 
 
 def describe_robot(robot: Robot, config: PromptConfig, control_hz: float = 10.0) -> str:
@@ -66,18 +87,14 @@ def _illustration(enc: Encoding) -> str:
             f"({examples}). Reply with one line: Output: [n1, ..., n12]")
 
 
-def format_pair(obs: np.ndarray, action: np.ndarray, enc: Encoding, obs_idx: np.ndarray) -> str:
-    return f"Input: {enc.encode(obs[obs_idx])}\nOutput: {enc.encode(action)}"
-
-
-def build_prompt(description: str, history: Sequence[tuple[np.ndarray, np.ndarray]], obs: np.ndarray,
-                 config: PromptConfig) -> str:
-    """Description, the history pairs (oldest first) and the current input awaiting its output."""
+def build_prompt(description: str, history: Sequence[Pair], obs: np.ndarray, config: PromptConfig,
+                 demonstrations: Sequence[Pair] = ()) -> str:
+    """Description, the examples the prompt strategy picks from the history window (oldest first) and the
+    demonstration memory, and the current input awaiting its output."""
     enc, idx = get_encoding(config.encoding), select(config.observation)
     lines = [description, ""] if description else []
-    if history:
-        lines.append(HISTORY_HEADER)
-        lines += [format_pair(o, a, enc, idx) for o, a in history]
+    lines += render_history(config.strategy, history, demonstrations, obs, enc, idx, config.k, config.memory,
+                            config.distance)
     lines.append(f"Input: {enc.encode(obs[idx])}")
     lines.append("Output:")
     return "\n".join(lines)
@@ -86,6 +103,6 @@ def build_prompt(description: str, history: Sequence[tuple[np.ndarray, np.ndarra
 def split_prompt(prompt: str) -> tuple[str, str]:
     """(description, history and current input): the chat layout's system and user messages, as the
     paper's code sent them."""
-    starts = [i for i in (prompt.find(HISTORY_HEADER), prompt.find("Input: ")) if i >= 0]
+    starts = [i for i in (*(prompt.find(h) for h in EXAMPLE_HEADERS), prompt.find("Input: ")) if i >= 0]
     cut = min(starts) if starts else len(prompt)
     return prompt[:cut].strip(), prompt[cut:]

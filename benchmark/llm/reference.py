@@ -18,6 +18,7 @@ import time
 import numpy as np
 
 from benchmark.llm.models import Constraint, Reply, Sampling
+from benchmark.llm.strategies import gait_period
 from benchmark.llm.tokens import gpt4_tokens
 
 OUTPUT_LINE = re.compile(r"^Output: (\[[^\]]*\])\s*$", re.MULTILINE)
@@ -114,12 +115,7 @@ class ReplayModel(_TextModel):
         actions = [a for a in actions if actions and len(a) == len(actions[-1])]
         if len(actions) < 4:
             return outputs[-1] if outputs else "[]"
-        a = np.array(actions)
-        best, period = np.inf, 1
-        for p in range(2, min(20, len(a) // 2) + 1):
-            error = float(np.mean((a[-p:] - a[-2 * p:-p]) ** 2))
-            if error < best:
-                best, period = error, p
+        period = gait_period(np.array(actions))
         return outputs[len(outputs) - period]
 
 

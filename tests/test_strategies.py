@@ -1,0 +1,146 @@
+"""Prompt strategies: one renderer for probe and closed loop, what each gives away, and the closed-loop diagnostics."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from benchmark.evaluate.probe import ProbeRun, ProbeSetConfig, _prompts, answer_items, make_probe_set
+from benchmark.llm.controller import LLMSettings, takeover_prompt
+from benchmark.llm.encodings import get_encoding
+from benchmark.llm.prompt import PromptConfig, build_prompt
+from benchmark.llm.reference import HoldModel, knn_answer
+from benchmark.llm.strategies import NEAREST_HEADER, STRATEGIES, gait_period, nearest_last, retrieval_pool
+from benchmark.trial.cell import make_cell
+from benchmark.trial.trials import KeepPolicy, run_cell
+
+ROOT = Path(__file__).parents[1]
+ENC = get_encoding("E5")
+IDX = np.arange(33)
+
+
+@pytest.fixture(scope="module")
+def walk():
+    """A seed-policy walk of A1 on flat ground, made with the shipped policy, as the probe set holds one."""
+    probe = make_probe_set(ProbeSetConfig(robots=("a1",), terrains=("flat",), rollouts=1, items=3),
+                           progress=lambda line: None)
+    return probe
+
+
+def _cell(strategy: str, model: str = "hold", **extra):
+    return make_cell({"model": model, "prompt_strategy": strategy, "history": 10, "duration": 10.3, **extra})
+
+
+@pytest.mark.parametrize("strategy", list(STRATEGIES))
+def test_each_strategy_renders_the_same_text_in_probe_and_closed_loop(strategy, walk):
+    """At the takeover the closed loop's prompt and the probe's first item come from the same seed-policy walk:
+    the one renderer must write them identically (window, demonstration memory, order, headers)."""
+    cell = make_cell({"model": "hold", "prompt_strategy": strategy, "history": 10})
+    closed = takeover_prompt(cell)  # the prompt at 1 s + 10 pairs, read from a real rollout
+    settings = dataclasses.replace(cell.settings, llm_after=10.0)
+    run = ProbeRun(llm=settings, window="slide")
+    probe_walk = walk.walks[0]
+    # the probe's item at the same step as takeover_prompt's query: 10 pairs after the seed policy's start
+    k = 10
+    history = list(zip(probe_walk.observations[k - 10:k], probe_walk.actions[k - 10:k]))
+    demonstrations = tuple(zip(probe_walk.observations[:k], probe_walk.actions[:k]))
+    from benchmark.llm.controller import CONTROL_DT
+    from benchmark.llm.prompt import describe_robot
+    from robots import load_robot
+
+    description = describe_robot(load_robot("a1"), run.llm.prompt, control_hz=1.0 / CONTROL_DT)
+    opened = build_prompt(description, history, probe_walk.observations[k], run.llm.prompt, demonstrations)
+    assert opened == closed
+    if strategy in ("nearest", "nearest-only"):
+        assert NEAREST_HEADER in closed
+
+
+def test_probe_items_carry_only_pairs_from_before_the_takeover_as_memory(walk):
+    run = ProbeRun(llm=LLMSettings(history=10, prompt_strategy="nearest-only"))
+    for w, k, history, demonstrations, obs, label in _prompts(walk, run):
+        assert len(demonstrations) == w.first_item < k + 1
+        assert all(np.array_equal(d[0], w.observations[i]) for i, d in enumerate(demonstrations))
+        assert not any(np.array_equal(obs, d[0]) for d in demonstrations)
+
+
+def test_closed_loop_memory_is_frozen_at_the_takeover():
+    """The demonstration memory holds the seed policy's pairs up to the takeover and nothing the LLM made."""
+    cell = make_cell({"model": "knn", "prompt_strategy": "nearest-only", "history": 10, "seed_start": 1.0,
+                      "llm_after": 3.0, "duration": 4.0})
+    watch = KeepPolicy()
+    run_cell(cell, [0], hooks=[watch])
+    policy = watch.policy
+    memory = policy._trial.demonstrations
+    assert len(memory) == 20  # 1 s to 3 s at 10 Hz
+    takeover = len(memory)
+    assert all(a is b for (_, a), (_, b) in zip(memory, policy._trial.history[:takeover]))
+    llm_actions = [a for _, a in policy._trial.history[takeover:]]
+    assert len(llm_actions) == 10 and not any(any(a is m for _, m in memory) for a in llm_actions)
+
+
+def test_hold_on_a_nearest_last_prompt_equals_knn(walk):
+    """Nearest last means the prompt's last example line is its nearest: copying it is knn, in probe and closed loop."""
+    for memory in ("window", "both"):
+        settings = LLMSettings(history=10, prompt_strategy="nearest", memory=memory)
+        run = ProbeRun(llm=settings)
+        hold, knn = answer_items(walk, run, model=HoldModel()), answer_items(walk, run, model=_knn())
+        assert np.array_equal(hold.errors, knn.errors)
+        assert np.array_equal(hold.prompt_hold_errors, hold.prompt_knn_errors)
+    rows = {m: run_cell(_cell("nearest", m, memory="both", llm_after=2.0, seed_start=1.0, duration=4.0), [0])[0]
+            for m in ("hold", "knn")}
+    assert rows["hold"].distance_m == rows["knn"].distance_m
+
+
+def _knn():
+    from benchmark.llm.reference import KnnModel
+
+    return KnnModel()
+
+
+def test_retrieval_orders_nearest_last_and_breaks_ties_by_age():
+    pool = [(np.full(33, v), np.full(12, v)) for v in (0.5, 0.1, 0.3, 0.1)]
+    chosen = nearest_last(pool, np.zeros(33), ENC, IDX, "l2", k=3)
+    assert [float(o[0]) for o, _ in chosen] == [0.3, 0.1, 0.1]
+    assert chosen[-1] is pool[1]  # of the two at 0.1 the older is nearest
+    assert retrieval_pool(pool[:2], pool[2:], "window") == pool[:2]
+    assert retrieval_pool(pool[:2], pool[2:], "both") == pool[2:] + pool[:2]
+
+
+def test_cycle_puts_one_period_ago_just_above_the_query():
+    period = 6
+    window = [(np.full(33, float(i % period) / 10), np.full(12, float(i % period) / 10)) for i in range(20)]
+    assert gait_period(np.array([a for _, a in window])) == period
+    prompt = build_prompt("", window, np.zeros(33), PromptConfig(history=20, strategy="cycle"))
+    assert prompt.splitlines()[-3] == "Output: " + ENC.encode(window[20 - period][1])
+    assert HoldModel().reply_to(prompt) == ENC.encode(window[20 - period][1])
+
+
+def test_bad_strategy_k_or_memory_is_one_line_and_exit_2():
+    for args in (["--prompt-strategy", "best"], ["--retrieve-k", "0"], ["--memory", "everything"],
+                 ["--distance", "cosine"]):
+        out = subprocess.run([sys.executable, "-m", "benchmark.cli", "run", "--llm", "hold", *args],
+                             capture_output=True, text=True, cwd=ROOT, timeout=120)
+        assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1, (args, out.stderr)
+        assert "valid" in out.stderr or "> 0" in out.stderr
+
+
+def test_diagnostics_of_reference_models_are_what_they_must_be():
+    """`hold` repeats every action; `oracle` is 0 from the seed action; knn on the chronological prompt copies an
+    example line on every reply."""
+    def metrics(model: str) -> dict:
+        return run_cell(_cell("chronological", model, seed_start=1.0, llm_after=3.0, duration=5.0), [0])[0].policy_metrics
+
+    hold, oracle, knn = metrics("hold"), metrics("oracle"), metrics("knn")
+    assert hold["repeat_fraction"] == 1.0 and hold["copy_fraction"] == 1.0
+    assert oracle["oracle_distance_mean"] == 0.0 and oracle["repeat_fraction"] < 0.2
+    assert knn["copy_fraction"] == 1.0 and 0 < knn["oracle_distance_mean"] < hold["oracle_distance_mean"]
+    assert hold["demo_distance_mean"] == 0.0  # it repeats the last demonstration
+    assert len(oracle["diag_llm_actions"]) == len(oracle["diag_seed_actions"]) == 20
+    assert oracle["diag_llm_actions"] == oracle["diag_seed_actions"]
+    json.dumps(oracle)  # a row's metrics stay JSON

@@ -61,6 +61,10 @@ ADAPT: dict[str, tuple[list[str], dict[str, str]] | str] = {
                                                                           "the ray executor on a local instance",
     "bench sweep history --set model=openai:gpt-4o layout=chat --rate-limit 60 --workers 8": (["--dry-run"], {}),
     "bench sweep normalization --dry-run": ([], {}),
+    "bench run --llm qwen2.5-coder-0.5b --prompt-strategy nearest-only --trials 1":
+        (["--duration", "10.5"], {"qwen2.5-coder-0.5b": "knn"}),  # the ladder's model is an optional extra
+    "bench probe --llm knn --prompt-strategy nearest --cells a1/flat": (["--items", "2"], {}),
+    "bench eval --llm knn --prompt-strategy nearest-only": (["--store", "leaderboard"], {}),
 }
 
 

@@ -144,3 +144,51 @@ def test_diagnostics_of_reference_models_are_what_they_must_be():
     assert len(oracle["diag_llm_actions"]) == len(oracle["diag_seed_actions"]) == 20
     assert oracle["diag_llm_actions"] == oracle["diag_seed_actions"]
     json.dumps(oracle)  # a row's metrics stay JSON
+
+
+def test_the_study_runs_its_probe_stage_and_closed_loop_into_one_store_and_reports_both(tmp_path):
+    """`bench sweep` on an experiment with a [probe] table: probe rows and closed-loop trials in one store, resumed
+    (nothing runs twice), and `bench report` writes the probe table, the diagnostics and their figures."""
+    grid = tmp_path / "tiny_prompting.toml"
+    grid.write_text('''
+name = "tiny_prompting"
+title = "tiny prompting study"
+seeds = 1
+[fixed]
+robot = "a1"
+duration = 11.0
+seed_start = 1.0
+llm_after = 10.0
+history = 10
+[grid]
+controller = ["hold_nearest", "knn_nearest"]
+[variants.controller]
+hold_nearest = { policy = "llm", model = "hold", prompt_strategy = "nearest-only" }
+knn_nearest = { policy = "llm", model = "knn", prompt_strategy = "nearest-only" }
+[probe]
+cells = ["a1/flat"]
+items = 2
+grid = { model = ["hold", "knn"], prompt_strategy = ["chronological", "nearest-only"] }
+''')
+    store, bench = tmp_path / "store", [sys.executable, "-m", "benchmark.cli"]
+    out = subprocess.run([*bench, "sweep", str(grid), "--results", str(store)], capture_output=True, text=True,
+                         cwd=ROOT, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert "4 run(s), 0 already stored" in out.stdout and "2 trial(s) run" in out.stdout
+    again = subprocess.run([*bench, "sweep", str(grid), "--results", str(store), "--only", "prompt_strategy=chronological"],
+                           capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert again.returncode == 0 and "0 run(s), 2 already stored" in again.stdout, again.stdout + again.stderr
+    from benchmark.common.store import load_results
+
+    frame = load_results(store)
+    probes = frame[frame["kind"] == "probe"].set_index(["model", "prompt_strategy"])
+    # hold on a nearest-last prompt is the prompt's own trivial answer: no gain; on the chronological one it is 0 skill
+    assert probes.loc[("hold", "nearest-only"), "gain"] == 0.0
+    assert probes.loc[("hold", "chronological"), "skill"] == 0.0
+    assert probes.loc[("knn", "chronological"), "gain"] == 0.0
+    report = subprocess.run([*bench, "report", str(store), "--out", str(tmp_path / "reports")], capture_output=True,
+                            text=True, cwd=ROOT, timeout=300)
+    assert report.returncode == 0, report.stderr
+    text = (tmp_path / "reports" / "tiny_prompting.md").read_text()
+    assert "## Probe stage" in text and "## Closed-loop diagnostics" in text and "gain over the better" in text
+    assert (tmp_path / "reports" / "figures" / "tiny_prompting_probe.png").is_file()

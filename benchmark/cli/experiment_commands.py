@@ -27,11 +27,13 @@ def cmd_sweep(args, overrides_text: list[str], only_text: list[str]) -> int:
         return 0
     experiment = load_experiment(args.experiment)
     overrides = parse_overrides(overrides_text)
-    trials = experiment.trials(overrides, key_values(only_text, "--only", "KEY=VALUE"))
+    only = key_values(only_text, "--only", "KEY=VALUE")
+    jobs, trials = _stages(experiment, overrides, only, args.stage)
     if args.executor == "ray" and importlib.util.find_spec("ray") is None:
         raise CliError("--executor ray needs Ray: pip install -e '.[ray]'")
-    if not trials:
-        raise CliError(f"no cell of '{experiment.name}' matches --only {' '.join(only_text)}")
+    if not trials and not jobs:
+        raise CliError(f"no cell of '{experiment.name}' matches --only {' '.join(only_text)}"
+                       + (f" in stage {args.stage}" if args.stage != "all" else ""))
     if args.seeds is not None:
         trials = [t for t in trials if t.seed in experiment.seeds[:args.seeds]]
     root = Path(args.results or f"results/{experiment.name}")
@@ -42,11 +44,18 @@ def cmd_sweep(args, overrides_text: list[str], only_text: list[str]) -> int:
         from benchmark.experiments.sweep import stale_trials
 
         done = store.done_ids() - stale_trials(store)  # a trial of another seed policy runs again
+        if jobs:
+            print(f"{experiment.name} probe: {len(jobs)} runs, {sum(j.id not in done for j in jobs)} missing in "
+                  f"{store.root}")
+            for job in jobs:
+                print(f"  {job.id[:12]}  {job.label():<44} history {job.llm.history} ({job.window}), "
+                      f"{'+'.join(job.cells or ['all cells'])}  {'missing' if job.id not in done else 'stored'}")
         cells: dict[str, list] = {}
         for t in trials:
             cells.setdefault(t.cell_id, []).append(t)
-        print(f"{experiment.name}: {len(cells)} cells, {len(trials)} trials, "
-              f"{sum(t.id not in done for t in trials)} missing in {store.root}")
+        if trials or not jobs:
+            print(f"{experiment.name}: {len(cells)} cells, {len(trials)} trials, "
+                  f"{sum(t.id not in done for t in trials)} missing in {store.root}")
         for group in cells.values():
             t = group[0]
             params = {**t.cell.params(), **t.labels}
@@ -57,6 +66,15 @@ def cmd_sweep(args, overrides_text: list[str], only_text: list[str]) -> int:
             _print_cost(cells, args)
         return 0
     try:
+        if jobs:
+            from benchmark.evaluate.study import run_probe_stage
+            from benchmark.trial.resources import Runtime
+
+            ran, stored = run_probe_stage(jobs, store, Runtime(threads=args.threads), draft=experiment.probe.get("draft"),
+                                          command=" ".join(["bench", *args.argv]))
+            print(f"{experiment.name} probe: {ran} run(s), {stored} already stored; results in {store.root}")
+        if not trials:
+            return 0
         outcome = run_sweep(trials, store, workers=args.workers, executor=args.executor, address=args.ray_address,
                             requests_per_minute=args.rate_limit, threads=args.threads,
                             command=" ".join(["bench", *args.argv]), concurrency=args.concurrency)
@@ -72,6 +90,31 @@ def cmd_sweep(args, overrides_text: list[str], only_text: list[str]) -> int:
           f"{outcome.total} in the grid; {outcome.wall_s:.1f} s with {args.workers} {args.executor} worker(s); "
           f"results in {store.root}")
     return 0
+
+
+def _stages(experiment, overrides: dict, only: dict, stage: str) -> tuple[list, list]:
+    """(probe runs, closed-loop trials) of the stages asked for. An --only key is matched in each stage that has it;
+    a stage that has none of a key's kind matches nothing (--only strategy=nearest picks probe runs alone)."""
+    import dataclasses
+
+    from benchmark.evaluate.probe import DEFAULT_PROBE, load_probe_set
+    from benchmark.evaluate.study import probe_jobs
+    from benchmark.experiments.experiment import ExperimentError
+    from benchmark.llm.controller import LLMSettings
+    from benchmark.trial.cell import setting_fields
+
+    trial_keys = {*setting_fields(), *experiment.grid}
+    probe_keys = {*(f.name for f in dataclasses.fields(LLMSettings)), *experiment.probe.get("grid", {})} \
+        if experiment.probe else set()
+    unknown = [k for k in only if k not in trial_keys | probe_keys]
+    if unknown:
+        raise ExperimentError(f"--only: unknown setting '{unknown[0]}'; valid: {', '.join(sorted(trial_keys | probe_keys))}")
+    jobs = trials = []
+    if stage != "closed-loop" and experiment.probe and all(k in probe_keys for k in only):
+        jobs = probe_jobs(experiment, load_probe_set(DEFAULT_PROBE).digest, overrides, only)
+    if stage != "probe" and all(k in trial_keys for k in only):
+        trials = experiment.trials(overrides, only)
+    return jobs, trials
 
 
 def _print_cost(cells: dict, args) -> None:

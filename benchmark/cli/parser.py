@@ -83,6 +83,9 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("--seeds", type=_number(int, True), default=None, metavar="N",
                        help="run only the experiment's first N seeds (a slow engine's share; the report says the "
                             "store is partial)")
+    sweep.add_argument("--stage", default="all", choices=("all", "probe", "closed-loop"),
+                       help="an experiment with a [probe] table: its probe runs (every model and prompt strategy, "
+                            "teacher-forced), its closed-loop trials, or both, the probe first (default all)")
     sweep.add_argument("--concurrency", type=_number(int, True), default=1, metavar="N",
                        help="remote LLM servers: up to N trials in flight as threads of one process, sharing one "
                             "client and rate limit (with --workers 1; default 1)")

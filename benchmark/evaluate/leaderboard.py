@@ -18,8 +18,8 @@ import numpy as np
 
 from benchmark.common.figures import save_figure
 from benchmark.common.tables import to_markdown
-from benchmark.evaluate.probe import ItemAnswers, paired_comparison
-from benchmark.evaluate.scorecard import DEFAULT_STORE, load_rows, on_some_cells, row_label
+from benchmark.evaluate.probe import ItemAnswers, paired_comparison, paired_gain, subset
+from benchmark.evaluate.scorecard import DEFAULT_STORE, load_rows, on_some_cells, row_label, row_strategy
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -42,7 +42,8 @@ def best_rows(rows: list[dict]) -> list[dict]:
     """One row per model and probe: the full tier's where it ran (its probe is the quick tier's), else the quick."""
     best: dict = {}
     for r in rows:
-        key = (row_label(r), r.get("file_sha256"), r.get("server_model"), r["probe_digest"], str(r["probe_settings"]))
+        key = (row_label(r), r.get("file_sha256"), r.get("server_model"), r["probe_digest"], str(r["probe_settings"]),
+               row_strategy(r))
         if key not in best or (r.get("closed_loop") and not best[key].get("closed_loop")):
             best[key] = r
     return list(best.values())
@@ -67,6 +68,30 @@ def rank_correlation(rows: list[dict], models_only: bool = False) -> tuple[float
     return float(x.rank().corr(y.rank())), len(points)
 
 
+TRIVIAL = ("hold", "knn")  # the same prompt's trivial answers: its last example line, and its nearest example's
+
+
+def trivial_gain(row: dict, rows: list[dict]) -> tuple[str, float, float, float] | None:
+    """A model row's probe skill minus the better of its own prompt's trivial answers, with a paired 95% interval:
+    the `hold` and `knn` reference rows scored on the same probe set, settings and prompt strategy (their items
+    narrowed to the row's cells). None for reference rows, or when those rows are not in the store."""
+    if row.get("kind") == "reference":
+        return None
+    mine = ItemAnswers.from_json(row["probe_items"])
+    best = None
+    for ref in rows:
+        if (ref.get("kind") != "reference" or ref["model"] not in TRIVIAL or ref["probe_digest"] != row["probe_digest"]
+                or ref["probe_settings"] != row["probe_settings"] or row_strategy(ref) != row_strategy(row)):
+            continue
+        theirs = subset(ItemAnswers.from_json(ref["probe_items"]), sorted(set(mine.cells)))
+        if theirs.cells != mine.cells or not np.allclose(theirs.hold_errors, mine.hold_errors):
+            continue
+        gain = paired_gain(mine, theirs)
+        if best is None or gain[0] < best[1]:  # the better trivial answer leaves the smaller gain
+            best = (ref["model"], *gain)
+    return best
+
+
 def headline(rows: list[dict]):
     import pandas as pd
 
@@ -74,9 +99,13 @@ def headline(rows: list[dict]):
     for r in rows:
         p = r["probe"]
         nwt, success, trials = _closed(r)
-        out.append({"model": row_label(r), "kind": r.get("kind"), "params": r.get("parameters") or "-",
+        gain = trivial_gain(r, rows)
+        out.append({"model": row_label(r), "strategy": row_strategy(r), "kind": r.get("kind"),
+                    "params": r.get("parameters") or "-",
                     "tier": r["tier"], "probe skill [95%]": f"{p['skill']:.3f} [{p['skill_low']:.3f}, "
                                                             f"{p['skill_high']:.3f}]",
+                    "gain over the prompt's trivial answer [95%]": "-" if gain is None else
+                    f"{gain[1]:+.3f} [{gain[2]:+.3f}, {gain[3]:+.3f}] over {gain[0]}",
                     "error": round(p["error"], 3), "within 1 step": round(p["within_step"], 2),
                     "parse failures": p["parse_failures"], "s/query": round(p["latency_median_s"], 2),
                     "closed-loop NWT": "-" if nwt is None else f"{nwt:.2f}",

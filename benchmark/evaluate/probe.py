@@ -410,6 +410,25 @@ def paired_comparison(a: ItemAnswers, b: ItemAnswers, seed: int = 0) -> float:
     return float(np.mean(wins))
 
 
+def paired_gain(a: ItemAnswers, b: ItemAnswers, seed: int = 0) -> tuple[float, float, float]:
+    """skill(a) - skill(b) over the same items, with its 95% paired bootstrap interval."""
+    if a.cells != b.cells or not np.allclose(a.hold_errors, b.hold_errors):
+        raise ValueError("a paired gain needs two runs over the same items and prompt settings")
+    cells = np.array(a.cells)
+    draws = [skill(a.errors[i], a.hold_errors[i], cells[i]) - skill(b.errors[i], b.hold_errors[i], cells[i])
+             for i in _resamples(cells, seed)]
+    low, high = np.percentile(draws, [2.5, 97.5])
+    return (skill(a.errors, a.hold_errors, cells) - skill(b.errors, b.hold_errors, cells), float(low), float(high))
+
+
+def subset(answers: ItemAnswers, cells: list[str] | tuple[str, ...]) -> ItemAnswers:
+    """The items of these cells only, in their order."""
+    keep = np.array([c in cells for c in answers.cells], dtype=bool)
+    values = {f.name: (getattr(answers, f.name)[keep] if isinstance(getattr(answers, f.name), np.ndarray) else
+                       getattr(answers, f.name)) for f in dataclasses.fields(answers) if f.name != "cells"}
+    return ItemAnswers([c for c, k in zip(answers.cells, keep) if k], **values)
+
+
 def summarize_answers(answers: ItemAnswers) -> dict:
     """Per cell and overall: error, skill with its interval, within one step, per joint, failures, cost."""
     cells = np.array(answers.cells)

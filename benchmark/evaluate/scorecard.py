@@ -38,7 +38,8 @@ from benchmark.evaluate.probe import (
     summarize_answers,
 )
 from benchmark.experiments.experiment import Trial
-from benchmark.llm.controller import LLMSettings, is_embedded
+from benchmark.llm.controller import STRATEGY_FIELDS, LLMSettings, is_embedded, strategy_label
+from benchmark.llm.strategies import DEFAULT_STRATEGY, STRATEGIES
 from benchmark.llm.models import check_model_spec
 from benchmark.trial.cell import make_cell
 from benchmark.trial.resources import Runtime
@@ -108,10 +109,20 @@ def _cached_sha256(path: Path) -> str:
     return known[key]
 
 
-def row_id(identity: dict, tier: Tier, suite: Suite, probe_digest: str, cells: tuple[str, ...] | None) -> str:
-    key = json.dumps([identity.get("model"), identity.get("file_sha256"), identity.get("server_model"), suite.name,
-                      suite.version, tier.name, tier.probe, tier.closed_loop, probe_digest, cells], sort_keys=True)
-    return hashlib.sha256(key.encode()).hexdigest()[:16]
+def strategy_settings(llm: LLMSettings) -> dict:
+    """The prompt strategy's settings of a row (the paper's chronological prompt reads no K, memory or distance)."""
+    values = {name: getattr(llm, name) for name in STRATEGY_FIELDS}
+    return values if STRATEGIES[llm.prompt_strategy].retrieves else {"prompt_strategy": llm.prompt_strategy}
+
+
+def row_id(identity: dict, tier: Tier, suite: Suite, probe_digest: str, cells: tuple[str, ...] | None,
+           strategy: dict | None = None) -> str:
+    """A row's key; the paper's chronological prompt keeps the key rows had before strategies existed."""
+    parts = [identity.get("model"), identity.get("file_sha256"), identity.get("server_model"), suite.name,
+             suite.version, tier.name, tier.probe, tier.closed_loop, probe_digest, cells]
+    if strategy and strategy.get("prompt_strategy", DEFAULT_STRATEGY) != DEFAULT_STRATEGY:
+        parts.append(strategy)
+    return hashlib.sha256(json.dumps(parts, sort_keys=True).encode()).hexdigest()[:16]
 
 
 def _probe_run(tier: Tier, llm: LLMSettings, runtime: Runtime,
@@ -133,7 +144,7 @@ def closed_loop_trials(tier: Tier, llm: LLMSettings, cells: tuple[str, ...] | No
     for index, name in enumerate(chosen):
         robot, terrain = name.split("/")
         cell = make_cell({**spec, "robot": robot, "terrain": terrain, "policy": "llm", "model": llm.model,
-                          **({"url": llm.url} if llm.url else {})}, "suite closed_loop")
+                          **strategy_settings(llm), **({"url": llm.url} if llm.url else {})}, "suite closed_loop")
         out += [Trial("scorecard", cell, seed, {"cell": name}, index) for seed in range(trials)]
     return out
 
@@ -192,14 +203,16 @@ def evaluate(llm: LLMSettings, tier_name: str = "quick", suite_path: Path | str 
     check_model_spec(llm.model)
     probe = load_probe_set(probe_path)
     identity = model_identity(llm.model, llm.url)
-    rid = row_id(identity, tier, suite, probe.digest, cells)
+    strategy = strategy_settings(llm)
+    rid = row_id(identity, tier, suite, probe.digest, cells, strategy)
     rows = Path(store) / "rows"
     path, found = rows / f"{rid}.json", None
     if path.is_file():
         found = json.loads(path.read_text())
         changed = stale_seed_policies(found, Path(store))
         if not changed:
-            print(f"bench: {llm.model} {tier_name} tier already scored ({path}); not run again", file=sys.stderr)
+            print(f"bench: {llm.model} {tier_name} tier ({strategy_label(llm)}) already scored ({path}); not run again",
+                  file=sys.stderr)
             return found
         print(f"bench: {llm.model} {tier_name} tier's closed loop ran another seed policy ({', '.join(changed)}); "
               "its trials run again with the shipped one", file=sys.stderr)
@@ -207,6 +220,8 @@ def evaluate(llm: LLMSettings, tier_name: str = "quick", suite_path: Path | str 
     partial = Path(store) / "partial" / f"{rid}.json"
     row = {"row_id": rid, "suite": suite.name, "suite_version": suite.version, "tier": tier_name, **identity,
            "probe_digest": probe.digest, "probe_settings": {**tier.probe}, "cells_filter": list(cells) if cells else None}
+    if strategy["prompt_strategy"] != DEFAULT_STRATEGY:  # a row without it ran the paper's chronological prompt
+        row.update(strategy=strategy_label(llm), strategy_settings=strategy)
     if found is not None:  # the probe set fixes the probe's items: only the closed loop depends on the shipped policy
         row.update(probe=found["probe"], probe_items=found["probe_items"])
     else:
@@ -250,8 +265,16 @@ def on_some_cells(row: dict) -> bool:
 
 
 def row_label(row: dict) -> str:
-    """The row's model name, with its cells in brackets when it was scored on some cells only."""
-    return row["model"] + (f" ({'+'.join(row['cells_filter'])})" if on_some_cells(row) else "")
+    """The row's model name, with its cells in brackets when it was scored on some cells only, and its prompt
+    strategy after a slash when it is not the paper's."""
+    strategy = row_strategy(row)
+    return row["model"] + (f" ({'+'.join(row['cells_filter'])})" if on_some_cells(row) else "") + \
+        (f" / {strategy}" if strategy != DEFAULT_STRATEGY else "")
+
+
+def row_strategy(row: dict) -> str:
+    """The prompt strategy a row ran (rows made before strategies ran the paper's chronological prompt)."""
+    return row.get("strategy", DEFAULT_STRATEGY)
 
 
 def load_rows(store: Path | str = DEFAULT_STORE) -> list[dict]:

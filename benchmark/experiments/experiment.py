@@ -19,6 +19,10 @@
     source = "Wang et al. 2023, GPT-4"
     nwt = { E1 = 0.137, E2 = 0.086, E3 = 0.700, E4 = 0.504, E5 = 0.721 }
 
+    [probe]                      # optional: the imitation probe for every combination of its grid,
+    cells = ["a1/flat"]          # one row each in the same store (benchmark.evaluate.study)
+    grid = { model = ["embedded", "knn"], strategy = ["chronological", "nearest"] }
+
 A cell is one `CellSpec` (engine, robot, terrain, policy and its settings); a trial is a
 cell and a seed. Settings that only another policy reads are dropped from a cell, so a grid
 over encodings does not run the seed policy five times.
@@ -77,6 +81,24 @@ class Experiment:
     seeds: tuple[int, ...]
     source: Path | None = None
     paper: dict = field(default_factory=dict)  # {"axis", "source", metric -> {axis value (text) -> figure}}
+    probe: dict = field(default_factory=dict)  # {"grid", "cells", "window", "items", "draft"}: the probe stage
+
+    def probe_settings(self, overrides: dict | None = None, only: dict | None = None) -> list[tuple[dict, dict]]:
+        """(LLM settings, labels) of every combination of the probe's grid: the file's [fixed] LLM settings, then
+        the grid's (an axis named after a variants table picks from it), then `overrides`; `only` keeps the
+        combinations whose labels or settings match (as text)."""
+        grid = self.probe.get("grid", {})
+        out = []
+        for combo in itertools.product(*grid.values()):
+            settings, labels = {k: v for k, v in self.fixed.items() if k not in PROBE_IGNORES}, {}
+            for axis, value in zip(grid, combo):
+                labels[axis] = value
+                settings.update(self.variants[axis][value] if axis in self.variants else {axis: value})
+            settings.update({k: v for k, v in (overrides or {}).items() if k not in PROBE_IGNORES})
+            if only and any(str({**settings, **labels}.get(k)) != v for k, v in only.items()):
+                continue
+            out.append((settings, labels))
+        return out
 
     @property
     def axes(self) -> list[str]:
@@ -154,7 +176,7 @@ def load_experiment(name_or_path: str) -> Experiment:
         data = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as err:
         raise ExperimentError(f"{path}: not valid TOML: {err}") from None
-    allowed = {"name", "title", "seeds", "fixed", "grid", "variants", "paper"}
+    allowed = {"name", "title", "seeds", "fixed", "grid", "variants", "paper", "probe"}
     unknown = [k for k in data if k not in allowed]
     if unknown:
         raise ExperimentError(f"{path}: unknown key '{unknown[0]}'; valid: {', '.join(sorted(allowed))}")
@@ -173,9 +195,10 @@ def load_experiment(name_or_path: str) -> Experiment:
         seeds = list(range(seeds))
     if not seeds or not all(isinstance(s, int) for s in seeds):
         raise ExperimentError(f"{path}: seeds must be a count or a list of integers")
+    probe = _probe_table(path, data.get("probe", {}), variants)
     experiment = Experiment(name=data.get("name", path.stem), title=data.get("title", path.stem),
                             fixed=data.get("fixed", {}), grid=grid,
-                            variants=variants, seeds=tuple(seeds), source=path, paper=paper)
+                            variants=variants, seeds=tuple(seeds), source=path, paper=paper, probe=probe)
     try:
         experiment.trials()  # every cell must build: unknown settings fail here, before any trial runs
     except ExperimentError:
@@ -183,6 +206,25 @@ def load_experiment(name_or_path: str) -> Experiment:
     except ValueError as err:
         raise ExperimentError(f"{path}: {err}") from None
     return experiment
+
+
+PROBE_KEYS = ("grid", "cells", "window", "items", "draft")
+PROBE_IGNORES = ("sim", "robot", "terrain", "terrain_seed", "policy", "duration", "heading_hold")  # the probe set's
+
+
+def _probe_table(path: Path, probe: dict, variants: dict) -> dict:
+    """The `[probe]` table checked: known keys, a grid of non-empty lists naming existing variants."""
+    unknown = [k for k in probe if k not in PROBE_KEYS]
+    if unknown:
+        raise ExperimentError(f"{path}: probe: unknown key '{unknown[0]}'; valid: {', '.join(PROBE_KEYS)}")
+    for axis, values in probe.get("grid", {}).items():
+        if not isinstance(values, list) or not values:
+            raise ExperimentError(f"{path}: probe.grid.{axis} must be a non-empty list")
+        missing = [v for v in values if axis in variants and v not in variants[axis]]
+        if missing:
+            raise ExperimentError(f"{path}: probe.grid.{axis} names variant '{missing[0]}', not in "
+                                  f"[variants.{axis}]: {', '.join(variants[axis])}")
+    return probe
 
 
 PAPER_METRICS = ("nwt", "success", "gpt4_input_tokens", "gpt4_output_tokens")

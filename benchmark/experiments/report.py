@@ -27,6 +27,7 @@ from benchmark.common.fingerprint import describe
 from benchmark.common.tables import to_markdown, wilson
 from benchmark.experiments.experiment import ExperimentError, axes_of, load_experiment
 from benchmark.experiments.report_latency import latency_section, realtime_section
+from benchmark.experiments.report_prompting import diagnostics_section, probe_section, split_probe_rows
 from robots import load_robot
 
 FORMATS = ("md", "html", "csv")
@@ -320,20 +321,27 @@ def write_reports(frame: pd.DataFrame, out: Path, fmt: str = "md", force: bool =
             _check_replace(out / f"{name}.{suffix}", store_digest(group), force or suffix != fmt)
     out.mkdir(parents=True, exist_ok=True)
     written = []
-    for name, group in frame.groupby("experiment", sort=False):
-        group = group.sort_values(["cell_index", "seed"]).reset_index(drop=True)
+    for name, everything in frame.groupby("experiment", sort=False):
+        everything = everything.sort_values(["cell_index", "seed"]).reset_index(drop=True)
+        group, probes = split_probe_rows(everything)
+        context = store_context(str(name), everything)
+        probe_lines, probe_figures = probe_section(probes, out, str(name), expected_probe_runs(str(name)))
+        path = out / f"{name}.{fmt}"
+        if group.empty:  # the probe stage alone so far
+            path.write_text(_probe_only_report(str(name), context, everything, probe_lines))
+            written += [path, *probe_figures]
+            continue
         table, engines = summary_table(group), engine_table(group)
         numbers = summary_table(group, spread=False)
-        context = store_context(str(name), group)
         title, paper = context.title, context.paper
         published = paper_table(group, paper) if paper else None
         bars = bar_figure(group, numbers, out / "figures" / f"{name}_bars.png", title, paper)
         traj = trajectory_figure(group, out / "figures" / f"{name}_trajectories.png")
         figures = [p for p in (bars, traj) if p is not None]
         extra, extra_figures = latency_section(group, out, str(name))
-        extra = extra + realtime_section(group)
-        figures += extra_figures
-        path = out / f"{name}.{fmt}"
+        diagnostics, diagnostic_figures = diagnostics_section(group, out, str(name), _row_label(group))
+        extra = extra + realtime_section(group) + probe_lines + diagnostics
+        figures += extra_figures + probe_figures + diagnostic_figures
         if fmt == "csv":
             table.to_csv(path, index=False)
         elif fmt == "html":
@@ -346,7 +354,8 @@ def write_reports(frame: pd.DataFrame, out: Path, fmt: str = "md", force: bool =
             parts += [f'<img src="figures/{p.name}" alt="{p.stem}">' for p in figures]
             path.write_text("\n".join(parts) + "\n")
         else:
-            path.write_text(_markdown_report(str(name), context, group, table, engines, figures, published, extra))
+            path.write_text(_markdown_report(str(name), context, group, table, engines, figures, published, extra,
+                                             digest_of=everything))
         written += [path, *figures]
     return written
 
@@ -400,9 +409,34 @@ def _walking_text(group: pd.DataFrame) -> str:
             f"{row['walk_min_speed']:g} m/s; success distance at least {row['walk_min_distance_m']:g} m")
 
 
+def _row_label(group: pd.DataFrame) -> str:
+    """The column that names a row of the store's grid (its first axis, e.g. `controller`), else `model`."""
+    axes = axes_of(group) if "axes" in group else []
+    return axes[0] if axes else "model"
+
+
+def expected_probe_runs(name: str) -> int | None:
+    """How many probe runs the shipped experiment's `[probe]` grid holds (None: no such experiment or table)."""
+    try:
+        experiment = load_experiment(name)
+    except ExperimentError:
+        return None
+    return len(experiment.probe_settings()) if experiment.probe else None
+
+
+def _probe_only_report(name: str, context: StoreContext, everything: pd.DataFrame, probe_lines: list[str]) -> str:
+    lines = [f"# {context.title}", "", f"Experiment `{name}`: the probe stage only so far (no closed-loop trials "
+             "stored yet; `bench sweep` runs them).", "", *probe_lines]
+    if context.commands:
+        lines += ["Made with:", "", *[f"    {c}" for c in context.commands], ""]
+    lines += [made_on(everything), "", f"Store digest: `{store_digest(everything)}` ({len(everything)} rows; `bench "
+              "report` will not replace this file with a report of another store unless given --force).", ""]
+    return "\n".join(lines)
+
+
 def _markdown_report(name: str, context: StoreContext, group: pd.DataFrame, table: pd.DataFrame,
                      engines: pd.DataFrame | None, figures: list[Path], published: pd.DataFrame | None = None,
-                     extra: list[str] = ()) -> str:
+                     extra: list[str] = (), digest_of: pd.DataFrame | None = None) -> str:
     versions = json.loads(group["versions"].dropna().iloc[0]) if "versions" in group and group["versions"].notna().any() else {}
     commits = sorted(str(c)[:10] for c in group.get("git_commit", pd.Series(dtype=str)).dropna().unique())
     lines = [f"# {context.title}", "",
@@ -434,6 +468,8 @@ def _markdown_report(name: str, context: StoreContext, group: pd.DataFrame, tabl
         lines += [f"Versions: {', '.join(f'{k} {v}' for k, v in versions.items())}; "
                   f"git commit {', '.join(commits) or 'unknown'}.", ""]
     lines += [made_on(group), "", seed_policies(group) + " " + command_mode(group), ""]
-    lines += [f"Store digest: `{store_digest(group)}` ({len(group)} trials; `bench report` will not replace this "
-              "file with a report of another store unless given --force).", ""]
+    rows = group if digest_of is None else digest_of
+    lines += [f"Store digest: `{store_digest(rows)}` ({len(group)} trials" + (
+              f" and {len(rows) - len(group)} probe runs" if len(rows) > len(group) else "")
+              + "; `bench report` will not replace this file with a report of another store unless given --force).", ""]
     return "\n".join(lines)

@@ -280,8 +280,8 @@ def stale_trials(store: ResultStore) -> set[str]:
             current[robot] = shipped_seed_policy_sha256(robot)
         except Exception:  # noqa: BLE001  a robot folder that is gone: nothing to compare with, keep its trials
             current[robot] = None
-    stale = stored[[current[robot] is not None and sha != current[robot]
-                    for robot, sha in zip(stored["robot"], stored["seed_policy_sha256"])]]
+    stale = stored.loc[[current[robot] is not None and sha != current[robot]  # .loc: an empty mask selects no rows
+                        for robot, sha in zip(stored["robot"], stored["seed_policy_sha256"])]]
     for robot, g in stale.groupby("robot"):
         print(f"bench: {len(g)} stored trial(s) of {robot} ran another seed policy "
               f"({', '.join(sorted(g['seed_policy_sha256'].unique()))}, now {current[robot]}): they run again",

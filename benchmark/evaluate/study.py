@@ -1,0 +1,118 @@
+"""The probe stage of an experiment: every combination of its `[probe]` grid (models x prompt strategies)
+scored on the probe set, one row each in the experiment's own results store, beside its closed-loop trials.
+
+    bench sweep prompting --stage probe       the probe for every (model, strategy), resumable
+    bench sweep prompting                     the probe stage, then the closed-loop trials
+    bench report results/prompting            both, with the same-prompt trivial answers and diagnostics
+
+A row holds the model's skill with its interval, its prompt's own trivial answers (`hold`: the last
+example line; `knn`: the nearest example's output) scored on the same items, the gain over the better
+of them with a paired interval, the cost, and the per-item errors. A probe run of hours saves each
+finished walk (`partial/`), so a stopped stage resumes inside a run as well as between runs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from benchmark.common.settings import build
+from benchmark.common.store import ResultStore
+from benchmark.evaluate.probe import DEFAULT_PROBE, ProbeRun, answer_walks, load_probe_set, print_progress, summarize_answers
+from benchmark.experiments.experiment import Experiment, ExperimentError
+from benchmark.experiments.sweep import run_metadata
+from benchmark.llm.controller import LLMSettings, strategy_label
+from benchmark.trial.resources import Runtime
+
+
+@dataclass(frozen=True)
+class ProbeJob:
+    """One (model, prompt settings) of an experiment's probe grid, on one probe set."""
+
+    experiment: str
+    llm: LLMSettings
+    labels: dict
+    window: str
+    cells: tuple[str, ...] | None
+    items: int | None
+    probe_digest: str
+    index: int  # position in the probe grid, for tables
+
+    @property
+    def id(self) -> str:
+        key = json.dumps([self.experiment, "probe", dataclasses.asdict(self.llm), self.window, self.cells, self.items,
+                          self.probe_digest], sort_keys=True)
+        return hashlib.sha256(key.encode()).hexdigest()[:16]
+
+    def label(self) -> str:
+        return f"{self.llm.model} / {strategy_label(self.llm)}"
+
+
+def probe_jobs(experiment: Experiment, probe_digest: str, overrides: dict | None = None,
+               only: dict | None = None) -> list[ProbeJob]:
+    """The probe stage's runs (empty when the experiment has no `[probe]` table)."""
+    table = experiment.probe
+    if not table:
+        return []
+    fields = {f.name for f in dataclasses.fields(LLMSettings)}
+    jobs = []
+    for index, (settings, labels) in enumerate(experiment.probe_settings(overrides, only)):
+        try:
+            llm = build(LLMSettings, {k: v for k, v in settings.items() if k in fields}, f"{experiment.name} probe")
+        except ValueError as err:
+            raise ExperimentError(f"{experiment.name}: probe: {err}") from None
+        cells = tuple(table["cells"]) if table.get("cells") else None
+        jobs.append(ProbeJob(experiment.name, llm, labels, table.get("window", "grow"), cells, table.get("items"),
+                             probe_digest, index))
+    return jobs
+
+
+def run_probe_stage(jobs: list[ProbeJob], store: ResultStore, runtime: Runtime, probe_path: Path | str = DEFAULT_PROBE,
+                    draft: str | None = None, command: str | None = None) -> tuple[int, int]:
+    """Run the jobs not yet in `store`, one row each as it finishes: (ran, already stored)."""
+    probe = load_probe_set(probe_path)
+    done = store.done_ids()
+    todo = [j for j in jobs if j.id not in done]
+    if draft is not None:
+        runtime = dataclasses.replace(runtime, draft=draft)
+    meta = run_metadata(command)
+    for number, job in enumerate(todo, 1):
+        print(f"bench: probe {number}/{len(todo)}: {job.label()}, history {job.llm.history} ({job.window}), "
+              f"{', '.join(job.cells or probe.cells)}", file=sys.stderr, flush=True)
+        run = ProbeRun(llm=job.llm, window=job.window, items=job.items, cells=job.cells)
+        started = time.perf_counter()
+        answers = answer_walks(probe, run, runtime, partial=store.root / "partial" / f"{job.id}.json",
+                               progress=print_progress)
+        store.write({**probe_row(job, summarize_answers(answers), answers), **meta,
+                     "trial_wall_s": time.perf_counter() - started, "load_1m": os.getloadavg()[0]})
+        (store.root / "partial" / f"{job.id}.json").unlink(missing_ok=True)
+    if todo:
+        store.snapshot()
+    return len(todo), len(jobs) - len(todo)
+
+
+def probe_row(job: ProbeJob, summary: dict, answers) -> dict:
+    """A probe run as one store row (kind "probe"); per-item errors kept for paired comparisons later."""
+    same = summary.get("same_prompt", {})
+    llm = dataclasses.asdict(job.llm)
+    llm["prompt_parts"] = "+".join(llm["prompt_parts"])
+    return {"experiment": job.experiment, "trial_id": job.id, "kind": "probe", "cell_index": job.index,
+            "seed": 0, **llm, **job.labels, "strategy": strategy_label(job.llm), "window": job.window,
+            "probe_cells": "+".join(job.cells) if job.cells else "all", "probe_digest": job.probe_digest,
+            "items": summary["items"], "skill": summary["skill"], "skill_low": summary["skill_low"],
+            "skill_high": summary["skill_high"], "error": summary["error"], "hold_error": summary["hold_error"],
+            "within_step": summary["within_step"], "parse_failures": summary["parse_failures"],
+            "latency_median_s": summary["latency_median_s"], "prompt_tokens": summary["prompt_tokens"],
+            "completion_tokens": summary["completion_tokens"], "wall_s": summary["wall_s"],
+            "same_prompt_hold_skill": same.get("hold_skill"), "same_prompt_knn_skill": same.get("knn_skill"),
+            "same_prompt_best": same.get("best"), "gain": same.get("gain"), "gain_low": same.get("gain_low"),
+            "gain_high": same.get("gain_high"), "item_errors": answers.errors.round(6).tolist(),
+            "item_hold_errors": answers.hold_errors.round(6).tolist(),
+            "item_prompt_hold_errors": answers.prompt_hold_errors.round(6).tolist(),
+            "item_prompt_knn_errors": answers.prompt_knn_errors.round(6).tolist()}

@@ -1,0 +1,169 @@
+"""The prompting sections of a report: the probe stage's table (each model and prompt strategy against its own
+prompt's trivial answers) and the closed loop's diagnostics (does a model freeze, copy, drift or fall, and when),
+with their figures. Both read only the numbers the store holds."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from benchmark.common.figures import save_figure
+from benchmark.common.tables import to_markdown, wilson
+
+DIAGNOSTICS = ("repeat_fraction", "copy_fraction", "demo_distance_mean", "oracle_distance_mean")
+SHOWN_JOINTS = (3, 4, 5, 1)  # FL hip, thigh, calf; FR thigh (canonical order)
+JOINT_NAMES = ("FR hip", "FR thigh", "FR calf", "FL hip", "FL thigh", "FL calf",
+               "RR hip", "RR thigh", "RR calf", "RL hip", "RL thigh", "RL calf")
+
+
+def split_probe_rows(group: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """(closed-loop trials, probe rows) of one experiment's store."""
+    if "kind" not in group:
+        return group, group.iloc[0:0]
+    probe = group["kind"] == "probe"
+    return group[~probe].reset_index(drop=True), group[probe].reset_index(drop=True)
+
+
+def _interval(value, low, high, signed: bool = False) -> str:
+    if value is None or pd.isna(value):
+        return "-"
+    f = "+.3f" if signed else ".3f"
+    return f"{value:{f}} [{low:{f}}, {high:{f}}]"
+
+
+def probe_table(rows: pd.DataFrame) -> pd.DataFrame:
+    out = []
+    for r in rows.sort_values("cell_index").itertuples():
+        out.append({"model": r.model, "strategy": r.strategy, "history": int(r.history), "items": int(r.items),
+                    "skill [95%]": _interval(r.skill, r.skill_low, r.skill_high),
+                    "same prompt: hold": round(float(r.same_prompt_hold_skill), 3),
+                    "same prompt: knn": round(float(r.same_prompt_knn_skill), 3),
+                    "gain over the better [95%]": _interval(r.gain, r.gain_low, r.gain_high, signed=True),
+                    "within 1 step": round(float(r.within_step), 2), "parse failures": int(r.parse_failures),
+                    "s/query (median)": round(float(r.latency_median_s), 2),
+                    "prompt tokens": int(round(float(r.prompt_tokens))), "wall (min)": round(float(r.wall_s) / 60, 1)})
+    return pd.DataFrame(out)
+
+
+def probe_figure(rows: pd.DataFrame, path: Path) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    strategies = list(dict.fromkeys(rows.sort_values("cell_index")["strategy"]))
+    models = list(dict.fromkeys(rows.sort_values("cell_index")["model"]))
+    fig, ax = plt.subplots(figsize=(max(6.0, 1.6 * len(strategies)), 3.8))
+    width = 0.8 / max(len(models), 1)
+    for i, model in enumerate(models):
+        mine = rows[rows["model"] == model].set_index("strategy")
+        xs = [k + (i - (len(models) - 1) / 2) * width for k, s in enumerate(strategies) if s in mine.index]
+        got = [mine.loc[s] for s in strategies if s in mine.index]
+        ax.bar(xs, [g["skill"] for g in got], width, label=model,
+               yerr=[[g["skill"] - g["skill_low"] for g in got], [g["skill_high"] - g["skill"] for g in got]],
+               capsize=2)
+    trivial = rows.groupby("strategy")[["same_prompt_hold_skill", "same_prompt_knn_skill"]].first().max(axis=1)
+    ax.scatter(range(len(strategies)), [trivial[s] for s in strategies], marker="_", s=900, color="black", zorder=3,
+               label="the prompt's better trivial answer")
+    ax.axhline(0.0, color="grey", lw=0.8, ls=":")
+    ax.set_xticks(range(len(strategies)), strategies, fontsize=8)
+    ax.set_ylabel("probe skill (1 - error / hold's error)")
+    ax.legend(fontsize=7)
+    ax.set_title("Probe skill by prompt strategy, against what each prompt gives away", fontsize=10)
+    return save_figure(fig, path, dpi=120)
+
+
+def probe_section(rows: pd.DataFrame, out: Path, name: str, expected: int | None = None) -> tuple[list[str], list[Path]]:
+    """Markdown lines and the figure for an experiment's probe stage (empty when it has none); `expected`: the
+    probe grid's size, to say when the stage is partial."""
+    if rows.empty:
+        return [], []
+    figure = probe_figure(rows, out / "figures" / f"{name}_probe.png")
+    first = rows.iloc[0]
+    lines = ["## Probe stage: each model and prompt strategy against its own prompt's trivial answers", "",
+             f"Teacher-forced imitation on the probe set `{first['probe_digest']}` ({first['probe_cells']}), history "
+             f"{int(first['history'])} ({first['window']}). Skill = 1 - error / error of freezing on the newest "
+             "action; every strategy is scored on the same items with the same normalizer. **Same prompt**: the "
+             "prompt's own trivial answers, `hold` (copy its last example line) and `knn` (its nearest example's "
+             "output). The gain is the model's skill minus the better of them, with a paired 95% bootstrap "
+             "interval: at or below 0 the prompt, not the model, carries the imitation.", "",
+             to_markdown(probe_table(rows)), "", f"![probe by strategy](figures/{figure.name})", ""]
+    if expected is not None and len(rows) < expected:
+        lines[2:2] = [f"**Partial stage**: {len(rows)} of the probe grid's {expected} runs (`bench sweep --stage probe` "
+                      "resumes).", ""]
+    return lines, [figure]
+
+
+def _phase_end(r) -> float | None:
+    """s after the takeover at which the robot first fell or stopped walking (None: it walked to the end)."""
+    ends = [t for t in (r.get("fall_time"), r.get("stop_time")) if t is not None and not pd.isna(t)]
+    return float(min(ends) - r["eval_start"]) if ends else None
+
+
+def diagnostics_table(trials: pd.DataFrame, label: str) -> pd.DataFrame:
+    out = []
+    for key, g in trials.groupby(label, sort=False):
+        n, wins = len(g), int(g["success"].sum())
+        low, high = wilson(wins, n)
+        ends = [_phase_end(r) for _, r in g.iterrows()]
+        stopped = [e for e in ends if e is not None]
+        row = {label: key, "trials": n, "NWT": round(float(g["nwt"].mean()), 2),
+               "success [95%]": f"{wins / n:.2f} [{low:.2f}, {high:.2f}]",
+               "fell or stopped": f"{len(stopped)}/{n}",
+               "after (s, median)": round(float(np.median(stopped)), 1) if stopped else "-"}
+        for name in DIAGNOSTICS:
+            values = g[name].dropna().astype(float) if name in g else pd.Series(dtype=float)
+            row[name.replace("_mean", "").replace("_", " ")] = round(float(values.mean()), 3) if len(values) else "-"
+        out.append(row)
+    return pd.DataFrame(out)
+
+
+def targets_figure(row: pd.Series, title: str, path: Path) -> Path | None:
+    """One trial's decoded replies against the seed policy's actions for the same states, four joints."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    llm, seed = row.get("diag_llm_actions"), row.get("diag_seed_actions")
+    if llm is None or seed is None or len(llm) == 0:
+        return None
+    llm = np.array([np.asarray(a, dtype=float) for a in llm])
+    seed = np.array([np.asarray(a, dtype=float) for a in seed])
+    t = float(row["eval_start"]) + 0.1 * np.arange(len(llm))
+    fig, axes = plt.subplots(len(SHOWN_JOINTS), 1, figsize=(7.5, 1.6 * len(SHOWN_JOINTS)), sharex=True)
+    for ax, j in zip(axes, SHOWN_JOINTS):
+        ax.plot(t, seed[:, j], color="black", lw=1.2, label="seed policy (same state, not shown to the model)")
+        ax.plot(t, llm[:, j], color="tab:red", lw=1.0, label="model's reply")
+        ax.set_ylabel(JOINT_NAMES[j], fontsize=8)
+    axes[0].legend(fontsize=7, loc="upper right")
+    axes[-1].set_xlabel("time (s)")
+    fig.suptitle(title, fontsize=9)
+    return save_figure(fig, path, dpi=110)
+
+
+def diagnostics_section(trials: pd.DataFrame, out: Path, name: str, label: str) -> tuple[list[str], list[Path]]:
+    """Markdown lines and figures for the LLM trials' diagnostics (empty when no trial recorded them)."""
+    if trials.empty or "repeat_fraction" not in trials or trials["repeat_fraction"].isna().all():
+        return [], []
+    llm = trials[trials["repeat_fraction"].notna()]
+    lines = ["## Closed-loop diagnostics", "",
+             "Per LLM trial, averaged per row: when the robot first fell or stopped walking after the takeover, the "
+             "fraction of replies that repeat the action before them (freezing) or copy an example line of their "
+             "prompt verbatim, and the mean absolute distance (action units, as written) of each reply from the "
+             "nearest demonstration action and from the seed policy's action for the same state (the oracle, "
+             "computed alongside, never shown to the model).", "", to_markdown(diagnostics_table(llm, label)), ""]
+    figures = []
+    models = llm[~llm["model"].isin(("hold", "knn", "replay", "oracle", "default"))]
+    if not models.empty:
+        best = models.sort_values(["nwt", "seed"], ascending=[False, True]).iloc[0]
+        figure = targets_figure(best, f"{best[label]}, seed {int(best['seed'])}: NWT {best['nwt']:.2f}",
+                                out / "figures" / f"{name}_targets.png")
+        if figure is not None:
+            figures.append(figure)
+            lines += [f"One trial's replies against the seed policy ({best[label]}, seed {int(best['seed'])}, the "
+                      "row's longest walk):", "", f"![replies against the seed policy](figures/{figure.name})", ""]
+    return lines, figures
+

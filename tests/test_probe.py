@@ -174,7 +174,7 @@ def test_bench_eval_quick_tier_prints_a_scorecard_and_does_not_rerun(tmp_path):
     assert again.returncode == 0 and "not run again" in again.stderr
     board = subprocess.run([*BENCH, "leaderboard", "--store", str(store), "--out", str(tmp_path)], capture_output=True,
                            text=True, timeout=120)
-    assert board.returncode == 0 and "| knn | reference |" in (tmp_path / "leaderboard.md").read_text()
+    assert board.returncode == 0 and "| knn | chronological | reference |" in (tmp_path / "leaderboard.md").read_text()
 
 
 @pytest.mark.parametrize("argv, message", [

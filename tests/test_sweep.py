@@ -233,7 +233,8 @@ def test_reference_rows_cover_the_llm_phase_from_the_same_state_and_tables_show_
         assert [list(q) for q in seed_traj[:before]] == [list(q) for q in hold_traj[:before]]
         assert [list(q) for q in seed_traj[before:]] != [list(q) for q in hold_traj[before:]]
     write_reports(frame, tmp_path / "reports")
-    table = [line for line in (tmp_path / "reports" / "phase.md").read_text().splitlines()
+    text = (tmp_path / "reports" / "phase.md").read_text().split("## Closed-loop diagnostics")[0]
+    table = [line for line in text.splitlines()
              if line.startswith("| ") and not line.startswith("| controller |")]  # rows of both tables
     assert len(table) == 4 and all(" [" in line and "±" in line for line in table), table
     repeated = summary_table(frame).set_index("controller")["repeated targets"]

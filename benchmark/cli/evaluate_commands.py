@@ -77,7 +77,9 @@ def cmd_eval(args, llm_values: dict, runtime: Runtime) -> int:
     row = evaluate(llm, args.tier, args.suite or DEFAULT_SUITE, args.store, args.probe or DEFAULT_PROBE,
                    tuple(args.cells) if args.cells else None, runtime, command=command)
     p = row["probe"]
-    print(f"scorecard {row['row_id']}: {row['model']} ({row['kind']}), {row['tier']} tier, probe {row['probe_digest']}")
+    strategy = f", prompt {row['strategy']}" if "strategy" in row else ""  # rows without it ran the paper's prompt
+    print(f"scorecard {row['row_id']}: {row['model']} ({row['kind']}), {row['tier']} tier{strategy}, probe "
+          f"{row['probe_digest']}")
     print(f"  probe: skill {p['skill']:.3f} [{p['skill_low']:.3f}, {p['skill_high']:.3f}], error {p['error']:.3f} "
           f"(hold {p['hold_error']:.3f}), within one step {p['within_step']:.2f}, {p['parse_failures']} parse "
           f"failures, {p['items']} items, median {p['latency_median_s']:.2f} s a query")

@@ -18,8 +18,8 @@ import numpy as np
 
 from benchmark.common.figures import save_figure
 from benchmark.common.tables import to_markdown
-from benchmark.evaluate.probe import ItemAnswers, paired_comparison, paired_gain, subset
-from benchmark.evaluate.scorecard import DEFAULT_STORE, load_rows, on_some_cells, row_label, row_strategy
+from benchmark.evaluate.probe import ItemAnswers, paired_comparison
+from benchmark.evaluate.scorecard import DEFAULT_STORE, load_rows, on_some_cells, row_label, row_strategy, trivial_gain
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -66,30 +66,6 @@ def rank_correlation(rows: list[dict], models_only: bool = False) -> tuple[float
         return None, len(points)
     x, y = pd.Series([p[0] for p in points]), pd.Series([p[1] for p in points])
     return float(x.rank().corr(y.rank())), len(points)
-
-
-TRIVIAL = ("hold", "knn")  # the same prompt's trivial answers: its last example line, and its nearest example's
-
-
-def trivial_gain(row: dict, rows: list[dict]) -> tuple[str, float, float, float] | None:
-    """A model row's probe skill minus the better of its own prompt's trivial answers, with a paired 95% interval:
-    the `hold` and `knn` reference rows scored on the same probe set, settings and prompt strategy (their items
-    narrowed to the row's cells). None for reference rows, or when those rows are not in the store."""
-    if row.get("kind") == "reference":
-        return None
-    mine = ItemAnswers.from_json(row["probe_items"])
-    best = None
-    for ref in rows:
-        if (ref.get("kind") != "reference" or ref["model"] not in TRIVIAL or ref["probe_digest"] != row["probe_digest"]
-                or ref["probe_settings"] != row["probe_settings"] or row_strategy(ref) != row_strategy(row)):
-            continue
-        theirs = subset(ItemAnswers.from_json(ref["probe_items"]), sorted(set(mine.cells)))
-        if theirs.cells != mine.cells or not np.allclose(theirs.hold_errors, mine.hold_errors):
-            continue
-        gain = paired_gain(mine, theirs)
-        if best is None or gain[0] < best[1]:  # the better trivial answer leaves the smaller gain
-            best = (ref["model"], *gain)
-    return best
 
 
 def headline(rows: list[dict]):

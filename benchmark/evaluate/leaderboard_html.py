@@ -13,12 +13,14 @@ import json
 
 import numpy as np
 
-from benchmark.evaluate.scorecard import on_some_cells, row_label
+from benchmark.evaluate.scorecard import on_some_cells, row_label, row_strategy, trivial_gain
 from robots import CANONICAL_JOINTS
 
 COLUMNS = (  # key, heading, kind ("text" or "number")
-    ("model", "model", "text"), ("kind", "kind", "text"), ("params", "params", "text"), ("tier", "tier", "text"),
-    ("skill", "probe skill [95%]", "number"), ("error", "probe error", "number"),
+    ("model", "model", "text"), ("strategy", "prompt strategy", "text"), ("kind", "kind", "text"),
+    ("params", "params", "text"), ("tier", "tier", "text"),
+    ("skill", "probe skill [95%]", "number"), ("gain", "gain over the prompt's trivial answer [95%]", "number"),
+    ("error", "probe error", "number"),
     ("within", "within 1 step", "number"), ("failures", "parse failures", "number"),
     ("latency", "s / query", "number"), ("nwt", "closed-loop NWT", "number"), ("success", "success", "number"),
 )
@@ -61,13 +63,17 @@ sortBy(h.get('sort')||'skill',h.get('dir')||'desc');
 """
 
 
-def _row_values(row: dict) -> dict:
+def _row_values(row: dict, rows: list[dict]) -> dict:
     p = row["probe"]
     cells = row.get("closed_loop") or {}
     nwt = float(np.mean([c["nwt"] for c in cells.values()])) if cells else None
     success = float(np.mean([c["success"] for c in cells.values()])) if cells else None
-    return {"model": row_label(row), "kind": row.get("kind", ""), "params": row.get("parameters") or "-", "tier": row["tier"],
-            "skill": p["skill"], "skill_ci": (p["skill_low"], p["skill_high"]), "error": p["error"],
+    gain = trivial_gain(row, rows)
+    return {"model": row_label(row), "strategy": row_strategy(row), "kind": row.get("kind", ""),
+            "params": row.get("parameters") or "-", "tier": row["tier"],
+            "skill": p["skill"], "skill_ci": (p["skill_low"], p["skill_high"]),
+            "gain": None if gain is None else gain[1], "gain_ci": None if gain is None else (gain[2], gain[3], gain[0]),
+            "error": p["error"],
             "within": p["within_step"], "failures": p["parse_failures"], "latency": p["latency_median_s"],
             "nwt": nwt, "success": success, "trials": sum(c["trials"] for c in cells.values()) if cells else 0}
 
@@ -76,6 +82,9 @@ def _cell(key: str, v: dict) -> str:
     value = v[key]
     if key == "skill":
         text = f"{value:.3f} <span class=ci>[{v['skill_ci'][0]:.3f}, {v['skill_ci'][1]:.3f}]</span>"
+    elif key == "gain" and value is not None:
+        low, high, over = v["gain_ci"]
+        text = f"{value:+.3f} <span class=ci>[{low:+.3f}, {high:+.3f}] over {html.escape(over)}</span>"
     elif key == "success" and value is not None:
         text = f"{value:.2f} <span class=ci>({v['trials']} trials)</span>"
     elif isinstance(value, float):
@@ -111,7 +120,7 @@ def _bars(title: str, items: list[tuple[str, float, tuple[float, float] | None]]
 def _joint_chart(rows: list[dict]) -> str:
     """Per-joint probe error, one line per row, joints in canonical order."""
     width, height, left, bottom = 640, 240, 40, 60
-    series = [(_row_values(r)["model"], r["probe"]["joint_error"]) for r in rows]
+    series = [(row_label(r), r["probe"]["joint_error"]) for r in rows]
     top = max(max(e) for _, e in series) * 1.1 or 1.0
     xs = lambda j: left + j * (width - left - 20) / 11  # noqa: E731
     ys = lambda e: height - bottom - (height - bottom - 10) * e / top  # noqa: E731
@@ -135,7 +144,7 @@ def render(rows: list[dict], command: str) -> str:
     # models on every cell, then models on some cells (`bench eval --cells`: skills of other items), then references
     group = lambda r: 2 if r.get("kind") == "reference" else int(on_some_cells(r))  # noqa: E731
     ordered = sorted(rows, key=lambda r: (group(r), -r["probe"]["skill"]))
-    values = [_row_values(r) for r in ordered]
+    values = [_row_values(r, rows) for r in ordered]
     head = "".join(f'<th data-key="{k}" data-kind="{kind}">{html.escape(h)}</th>' for k, h, kind in COLUMNS)
     body = []
     for r, v in zip(ordered, values):

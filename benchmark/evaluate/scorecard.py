@@ -31,10 +31,13 @@ from benchmark.common.store import ResultStore
 from benchmark.common.tables import wilson
 from benchmark.evaluate.probe import (
     DEFAULT_PROBE,
+    ItemAnswers,
     ProbeRun,
     answer_walks,
     load_probe_set,
+    paired_gain,
     print_progress,
+    subset,
     summarize_answers,
 )
 from benchmark.experiments.experiment import Trial
@@ -285,3 +288,27 @@ def load_rows(store: Path | str = DEFAULT_STORE) -> list[dict]:
         except json.JSONDecodeError:
             raise SettingError(f"'{path}' is not a scorecard row (malformed JSON); delete it to re-run") from None
     return rows
+
+
+TRIVIAL = ("hold", "knn")  # the same prompt's trivial answers: its last example line, and its nearest example's
+
+
+def trivial_gain(row: dict, rows: list[dict]) -> tuple[str, float, float, float] | None:
+    """A model row's probe skill minus the better of its own prompt's trivial answers, with a paired 95% interval:
+    the `hold` and `knn` reference rows scored on the same probe set, settings and prompt strategy (their items
+    narrowed to the row's cells). None for reference rows, or when those rows are not in the store."""
+    if row.get("kind") == "reference":
+        return None
+    mine = ItemAnswers.from_json(row["probe_items"])
+    best = None
+    for ref in rows:
+        if (ref.get("kind") != "reference" or ref["model"] not in TRIVIAL or ref["probe_digest"] != row["probe_digest"]
+                or ref["probe_settings"] != row["probe_settings"] or row_strategy(ref) != row_strategy(row)):
+            continue
+        theirs = subset(ItemAnswers.from_json(ref["probe_items"]), sorted(set(mine.cells)))
+        if theirs.cells != mine.cells or not np.allclose(theirs.hold_errors, mine.hold_errors):
+            continue
+        gain = paired_gain(mine, theirs)
+        if best is None or gain[0] < best[1]:  # the better trivial answer leaves the smaller gain
+            best = (ref["model"], *gain)
+    return best

@@ -7,10 +7,8 @@ their dataclass; its fields become `bench run` options and experiment keys.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from dataclasses import dataclass
 
-from robots import UnknownNameError
 from sims import PluginTable, load_entry_point
 
 
@@ -26,7 +24,7 @@ class PolicyEntry:
         return load_entry_point(self.settings) if self.settings else None
 
 
-POLICIES: Mapping[str, PolicyEntry] = PluginTable({e.name: e for e in (
+POLICIES: PluginTable = PluginTable({e.name: e for e in (
     PolicyEntry("llm", "benchmark.llm.controller:LLMPolicy",
                 "the paper's protocol: seed policy fills the prompt history, then the LLM drives",
                 settings="benchmark.llm.controller:LLMSettings", duration=20.0),
@@ -37,10 +35,8 @@ POLICIES: Mapping[str, PolicyEntry] = PluginTable({e.name: e for e in (
 
 
 def available_policies() -> list[str]:
-    return sorted(POLICIES)
+    return POLICIES.names()
 
 
 def policy_entry(name: str) -> PolicyEntry:
-    if name not in POLICIES:
-        raise UnknownNameError("policy", name, available_policies())
-    return POLICIES[name]
+    return POLICIES.get_named(name)

@@ -56,6 +56,15 @@ class PluginTable(Mapping):
             raise TypeError(f"its record is named '{obj.name}'")
         return obj
 
+    def names(self) -> list[str]:
+        return sorted(self._all())
+
+    def get_named(self, name: str) -> Any:
+        """The record of `name`, or the one-line error that lists the valid names."""
+        if name not in self._all():
+            raise UnknownNameError(self.noun, name, self.names())
+        return self._all()[name]
+
     def plugins(self) -> dict[str, Any]:
         """{name: value} of the entry points alone."""
         return {name: value for name, value in self._all().items() if name not in self.builtin}
@@ -84,7 +93,7 @@ class PluginTable(Mapping):
         return len(self._all())
 
 
-ENGINES: Mapping[str, Engine] = PluginTable({e.name: e for e in (
+ENGINES: PluginTable = PluginTable({e.name: e for e in (
     Engine("mujoco", "MuJoCo", "sims.mujoco:MujocoSim", ("mujoco",)),
     Engine("newton", "Newton", "sims.newton:NewtonSim", ("newton", "warp-lang", "mujoco-warp"),
            batched="sims.newton:NewtonWorlds", options="sims.newton_options:NewtonOptions"),
@@ -93,13 +102,11 @@ ENGINES: Mapping[str, Engine] = PluginTable({e.name: e for e in (
 
 
 def available_sims() -> list[str]:
-    return sorted(ENGINES)
+    return ENGINES.names()
 
 
 def engine(name: str) -> Engine:
-    if name not in ENGINES:
-        raise UnknownNameError("simulator", name, available_sims())
-    return ENGINES[name]
+    return ENGINES.get_named(name)
 
 
 def option_fields() -> dict[str, dataclasses.Field]:

@@ -64,6 +64,8 @@ ADAPT: dict[str, tuple[list[str], dict[str, str]] | str] = {
     "bench run --llm qwen2.5-coder-0.5b --prompt-strategy nearest-only --trials 1":
         (["--duration", "10.5"], {"qwen2.5-coder-0.5b": "knn"}),  # the ladder's model is an optional extra
     "bench probe --llm knn --prompt-strategy nearest --cells a1/flat": (["--items", "2"], {}),
+    "bench run": "the main job (500 queries of the embedded model); its path runs shortened as "
+                 "'bench run --duration 2.5 --llm-after 2 --trials 1'",
     "bench eval --llm knn --prompt-strategy nearest-only": (["--store", "leaderboard"], {}),
 }
 

@@ -14,6 +14,7 @@ import hashlib
 import json
 import os
 import re
+import signal
 import sys
 import threading
 import time
@@ -95,6 +96,7 @@ def default_threads() -> int:
 
 
 WAIT_STEP_S = 0.2  # s between checks for a signal while llama.cpp answers
+INTERRUPTS = {signal.SIGINT, signal.SIGTERM, signal.SIGHUP}
 # llama.cpp servers let go of during a Ctrl-C or SIGTERM: (server, set when its request ends, or None when idle)
 ABANDONED: list[tuple[object, threading.Event | None]] = []
 
@@ -169,8 +171,21 @@ class EmbeddedModel:
             params.swa_full = True  # Gemma 3's sliding-window layers otherwise forbid moving cached chunks
             params.n_cache_reuse = cache_reuse
         self.threads = params.cpuparams.n_threads
-        self._server = xllamacpp.Server(params)
-        self._answered = False  # see close()
+        self._server = None
+        try:
+            # a Ctrl-C that lands while llama.cpp loads would leave a server no one holds, whose destructor then
+            # waits for ever at exit: signals wait until the server is held, then it is let go of (see leave)
+            mask = signal.pthread_sigmask(signal.SIG_BLOCK, INTERRUPTS)
+            try:
+                self._server = xllamacpp.Server(params)
+            finally:
+                signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+            self._answered = False  # see close()
+        except BaseException:
+            if self._server is not None:
+                ABANDONED.append((self._server, None))
+                self._server = None
+            raise
 
     @classmethod
     def from_spec(cls, name: str | None, threads: int | None = None, cache_reuse: int = 0,

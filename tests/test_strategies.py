@@ -192,3 +192,43 @@ grid = { model = ["hold", "knn"], prompt_strategy = ["chronological", "nearest-o
     text = (tmp_path / "reports" / "tiny_prompting.md").read_text()
     assert "## Probe stage" in text and "## Closed-loop diagnostics" in text and "gain over the better" in text
     assert (tmp_path / "reports" / "figures" / "tiny_prompting_probe.png").is_file()
+    assert "## The study" in text and "<!-- study table -->" in text
+    hold_row = next(line for line in text.splitlines()
+                    if line.startswith("| hold (the prompt's last example line) | nearest-only (K 3, demonstrations, l2) |"))
+    assert f"| {probes.loc[('hold', 'nearest-only'), 'same_prompt_hold_skill']:.3f} |" in hold_row
+    assert "| 1/1 [" in hold_row or "| 0/1 [" in hold_row
+
+
+def test_the_study_table_joins_probe_and_closed_loop_and_says_what_is_missing():
+    """One row per model and prompt: the probe's skill and gain, the closed loop with its Wilson interval, the
+    exact-history variant as its own row, planned rows 'not run yet', probe-only strategies as such."""
+    import pandas as pd
+
+    from benchmark.experiments.report_prompting import study_table
+
+    def trial(model, strategy, mode, success):
+        return {"policy": "llm", "model": model, "prompt_strategy": strategy, "history_mode": mode, "success": success,
+                "nwt": 1.0 if success else 0.5, "distance_m": 9.0, "latency_mean_s": 2.0, "repeat_fraction": 0.1,
+                "copy_fraction": 0.7}
+
+    trials = pd.DataFrame([trial("qwen2.5-coder-0.5b", "nearest-only", "shifted", True),
+                           trial("qwen2.5-coder-0.5b", "nearest-only", "shifted", False),
+                           trial("qwen2.5-coder-0.5b", "nearest-only", "sliding", True),
+                           {**trial("hold", "nearest-only", "sliding", True), "latency_mean_s": 0.0}])
+    probe = {"skill": 0.5, "skill_low": 0.4, "skill_high": 0.6, "gain": -0.1, "gain_low": -0.2, "gain_high": 0.0,
+             "same_prompt_hold_skill": 0.61, "same_prompt_knn_skill": 0.62}
+    near = "nearest-only (K 3, demonstrations, l2)"
+    probes = pd.DataFrame([{"model": "qwen2.5-coder-0.5b", "strategy": near, **probe},
+                           {"model": "qwen2.5-coder-0.5b", "strategy": "cycle", **probe}])
+    planned = pd.DataFrame([{"policy": "llm", "model": "embedded", "prompt_strategy": "chronological",
+                             "history_mode": "shifted"}])
+    table = study_table(trials, probes, planned).set_index(["model", "prompt"])
+    shifted = table.loc[("Qwen2.5-Coder 0.5B", near)]
+    assert shifted["success [95%]"].startswith("1/2 [0.09,") and shifted["closed loop: NWT"] == "0.75"
+    assert shifted["gain over the prompt's trivial answer [95%]"] == "-0.100 [-0.200, +0.000]"
+    exact = table.loc[("Qwen2.5-Coder 0.5B", near + " (exact history)")]
+    assert exact["success [95%]"].startswith("1/1") and exact["probe skill [95%]"] == "-"
+    assert table.loc[("Qwen2.5-Coder 0.5B", "cycle"), "closed loop: NWT"] == "probe only"
+    assert table.loc[("Gemma 3 270M", "chronological"), "closed loop: NWT"] == "not run yet"
+    hold = table.loc[("hold (the prompt's last example line)", near)]
+    assert hold["probe skill [95%]"] == "0.610" and hold["s / query"] == "-"

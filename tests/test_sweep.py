@@ -321,3 +321,13 @@ def test_a_dry_run_counts_trials_of_another_seed_policy_as_missing(tmp_path, cap
     pq.write_table(pa.Table.from_pylist([{**row, "seed_policy_sha256": "0123456789ab"}]), path)
     assert main([*args, "--dry-run"]) == 0
     assert "1 trials, 1 missing" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("name", ["realtime", "latency", "prompting"])
+def test_committed_stores_keep_their_trial_ids_under_todays_settings(name):
+    """A setting added after a store was made (prompt strategies came after these stores) leaves the ids of
+    trials at its default as they were: the committed store still matches its experiment, so nothing reruns."""
+    ids = {t.id for t in load_experiment(name).trials()}
+    stored = load_results(Path(__file__).parents[1] / "reports" / "data" / (name if name == "prompting" else f"{name}.parquet"))
+    closed_loop = stored[stored["kind"] != "probe"] if "kind" in stored else stored
+    assert len(closed_loop) and closed_loop["trial_id"].isin(ids).all()

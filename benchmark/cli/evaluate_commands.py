@@ -17,11 +17,11 @@ def cmd_probe(args, llm_values: dict, run_values: dict, runtime: Runtime) -> int
 
     from benchmark.evaluate.probe import (
         DEFAULT_PROBE,
+        ProbeProgress,
         ProbeRun,
         answer_items,
         load_probe_set,
         make_probe_set,
-        print_progress,
         save_probe_set,
         summarize_answers,
     )
@@ -39,7 +39,7 @@ def cmd_probe(args, llm_values: dict, run_values: dict, runtime: Runtime) -> int
     if unknown:
         raise CliError(f"unknown probe cell '{unknown[0]}'; valid: {', '.join(probe.cells)}")
     run = dataclasses.replace(run, llm=llm, cells=tuple(args.cells) if args.cells else None)
-    answers = answer_items(probe, run, runtime, progress=print_progress)
+    answers = answer_items(probe, run, runtime, progress=ProbeProgress())
     summary = {"model": llm.model, "probe": probe.digest, "history": llm.history, "window": run.window,
                **summarize_answers(answers)}
     if args.json:

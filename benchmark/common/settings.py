@@ -19,10 +19,13 @@ class SettingError(ValueError):
 
 
 def setting(default, help: str, choices: Sequence[str] | Callable[[], Sequence[str]] | None = None,
-            minimum: float | None = None, positive: bool = False, flag: str | None = None, noun: str | None = None):
+            minimum: float | None = None, positive: bool = False, flag: str | None = None, noun: str | None = None,
+            added_later: bool = False):
     """A dataclass field whose metadata the CLI and validation read (help, choices, range, and the
-    command-line flag when it is not `--field-name`)."""
-    meta = {"help": help, "choices": choices, "minimum": minimum, "positive": positive, "flag": flag, "noun": noun}
+    command-line flag when it is not `--field-name`). `added_later`: a setting that came after results were
+    stored; at its default it is left out of trial ids, so the stores made before it stay valid."""
+    meta = {"help": help, "choices": choices, "minimum": minimum, "positive": positive, "flag": flag, "noun": noun,
+            "added_later": added_later}
     if isinstance(default, (list, dict)):
         raise TypeError("use a tuple for a sequence default")
     return dataclasses.field(default=default, metadata=meta)

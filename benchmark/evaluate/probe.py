@@ -46,6 +46,7 @@ import numpy as np
 from benchmark.common.settings import SettingError, setting
 from benchmark.llm.controller import CONTROL_DT, LLMSettings, _new_model
 from benchmark.llm.encodings import get_encoding
+from benchmark.llm.progress import RecentRate
 from benchmark.llm.prompt import build_prompt, describe_robot
 from benchmark.llm.reference import HoldModel, knn_answer
 from benchmark.llm.replies import parse_reply, reply_constraint
@@ -464,6 +465,15 @@ def same_prompt_gain(answers: ItemAnswers, seed: int = 0) -> dict:
             "gain": model - skills[best], "gain_low": float(low), "gain_high": float(high)}
 
 
-def print_progress(done: int, total: int, every: int = 10) -> None:
-    if done == total or done % every == 0:
-        print(f"bench: probe: {done}/{total} items", file=sys.stderr, flush=True)
+class ProbeProgress:
+    """The `progress` of a probe run: a line every `every` items, with an ETA from the recent rate."""
+
+    def __init__(self, every: int = 10) -> None:
+        self.every, self.rate = every, RecentRate(window=2 * every)
+
+    def __call__(self, done: int, total: int) -> None:
+        self.rate.add(done)
+        if done == total or done % self.every == 0:
+            eta = self.rate.eta(total - done) if done < total else None
+            tail = f", ETA {eta / 60:.1f} min" if eta is not None else ""
+            print(f"bench: probe: {done}/{total} items{tail}", file=sys.stderr, flush=True)

@@ -32,18 +32,18 @@ from benchmark.common.tables import wilson
 from benchmark.evaluate.probe import (
     DEFAULT_PROBE,
     ItemAnswers,
+    ProbeProgress,
     ProbeRun,
     answer_walks,
     load_probe_set,
     paired_gain,
-    print_progress,
     subset,
     summarize_answers,
 )
 from benchmark.experiments.experiment import Trial
 from benchmark.llm.controller import STRATEGY_FIELDS, LLMSettings, is_embedded, strategy_label
-from benchmark.llm.strategies import DEFAULT_STRATEGY, STRATEGIES
 from benchmark.llm.models import check_model_spec
+from benchmark.llm.strategies import DEFAULT_STRATEGY, STRATEGIES
 from benchmark.trial.cell import make_cell
 from benchmark.trial.resources import Runtime
 
@@ -232,7 +232,7 @@ def evaluate(llm: LLMSettings, tier_name: str = "quick", suite_path: Path | str 
         chosen = [w for w in probe.walks if cells is None or w.cell in cells]
         print(f"bench: probe {probe.digest}: {llm.model}, {dataclasses.replace(probe, walks=tuple(chosen)).items()} "
               "items", file=sys.stderr, flush=True)
-        answers = answer_walks(probe, run, probe_runtime, partial=partial, progress=print_progress)
+        answers = answer_walks(probe, run, probe_runtime, partial=partial, progress=ProbeProgress())
         row.update(probe=summarize_answers(answers), probe_items=answers.to_json(SCORECARD_ITEM_FIELDS, digits=6))
     closed_wall = 0.0
     if tier.closed_loop is not None:

@@ -24,7 +24,14 @@ from pathlib import Path
 
 from benchmark.common.settings import build
 from benchmark.common.store import ResultStore
-from benchmark.evaluate.probe import DEFAULT_PROBE, ProbeRun, answer_walks, load_probe_set, print_progress, summarize_answers
+from benchmark.evaluate.probe import (
+    DEFAULT_PROBE,
+    ProbeProgress,
+    ProbeRun,
+    answer_walks,
+    load_probe_set,
+    summarize_answers,
+)
 from benchmark.experiments.experiment import Experiment, ExperimentError
 from benchmark.experiments.sweep import run_metadata
 from benchmark.llm.controller import LLMSettings, strategy_label
@@ -88,7 +95,7 @@ def run_probe_stage(jobs: list[ProbeJob], store: ResultStore, runtime: Runtime, 
         run = ProbeRun(llm=job.llm, window=job.window, items=job.items, cells=job.cells)
         started = time.perf_counter()
         answers = answer_walks(probe, run, runtime, partial=store.root / "partial" / f"{job.id}.json",
-                               progress=print_progress)
+                               progress=ProbeProgress())
         store.write({**probe_row(job, summarize_answers(answers), answers), **meta,
                      "trial_wall_s": time.perf_counter() - started, "load_1m": os.getloadavg()[0]})
         (store.root / "partial" / f"{job.id}.json").unlink(missing_ok=True)

@@ -62,12 +62,12 @@ class Trial:
     @property
     def id(self) -> str:
         """Stable across runs and machines: the results store's key."""
-        key = json.dumps([self.experiment, self.cell.params(), self.seed], sort_keys=True)
+        key = json.dumps([self.experiment, self.cell.id_params(), self.seed], sort_keys=True)
         return hashlib.sha256(key.encode()).hexdigest()[:16]
 
     @property
     def cell_id(self) -> str:
-        key = json.dumps([self.experiment, self.cell.params()], sort_keys=True)
+        key = json.dumps([self.experiment, self.cell.id_params()], sort_keys=True)
         return hashlib.sha256(key.encode()).hexdigest()[:12]
 
 

@@ -27,7 +27,7 @@ from benchmark.common.fingerprint import describe
 from benchmark.common.tables import to_markdown, wilson
 from benchmark.experiments.experiment import ExperimentError, axes_of, load_experiment
 from benchmark.experiments.report_latency import latency_section, realtime_section
-from benchmark.experiments.report_prompting import diagnostics_section, probe_section, split_probe_rows
+from benchmark.experiments.report_prompting import diagnostics_section, probe_section, split_probe_rows, study_section
 from robots import load_robot
 
 FORMATS = ("md", "html", "csv")
@@ -340,7 +340,7 @@ def write_reports(frame: pd.DataFrame, out: Path, fmt: str = "md", force: bool =
         figures = [p for p in (bars, traj) if p is not None]
         extra, extra_figures = latency_section(group, out, str(name))
         diagnostics, diagnostic_figures = diagnostics_section(group, out, str(name), _row_label(group))
-        extra = extra + realtime_section(group) + probe_lines + diagnostics
+        extra = extra + realtime_section(group) + study_section(group, probes, planned_llm_cells(str(name))) + probe_lines + diagnostics
         figures += extra_figures + probe_figures + diagnostic_figures
         if fmt == "csv":
             table.to_csv(path, index=False)
@@ -422,6 +422,19 @@ def expected_probe_runs(name: str) -> int | None:
     except ExperimentError:
         return None
     return len(experiment.probe_settings()) if experiment.probe else None
+
+
+def planned_llm_cells(name: str) -> pd.DataFrame | None:
+    """The shipped experiment's LLM cells (model, prompt_strategy, history_mode), one row each (None: no such
+    experiment), so a partial store's tables show what is still to run."""
+    try:
+        experiment = load_experiment(name)
+    except ExperimentError:
+        return None
+    cells = {t.cell: t.cell.params() for t in experiment.trials()}
+    rows = [{k: p.get(k) for k in ("policy", "model", "prompt_strategy", "retrieve_k", "memory",
+                                                "distance", "history_mode")} for p in cells.values()]
+    return pd.DataFrame([r for r in rows if r["policy"] == "llm"])
 
 
 def _probe_only_report(name: str, context: StoreContext, everything: pd.DataFrame, probe_lines: list[str]) -> str:

@@ -11,6 +11,7 @@ import pandas as pd
 
 from benchmark.common.figures import save_figure
 from benchmark.common.tables import to_markdown, wilson
+from benchmark.llm.controller import strategy_text
 
 DIAGNOSTICS = ("repeat_fraction", "copy_fraction", "demo_distance_mean", "oracle_distance_mean")
 SHOWN_JOINTS = (3, 4, 5, 1)  # FL hip, thigh, calf; FR thigh (canonical order)
@@ -96,6 +97,102 @@ def probe_section(rows: pd.DataFrame, out: Path, name: str, expected: int | None
     return lines, [figure]
 
 
+MODEL_NAMES = {"embedded": "Gemma 3 270M", "qwen2.5-coder-0.5b": "Qwen2.5-Coder 0.5B",
+               "qwen2.5-coder-1.5b": "Qwen2.5-Coder 1.5B", "hold": "hold (the prompt's last example line)",
+               "knn": "knn (the prompt's nearest example)"}
+TRIVIAL = {"hold": "same_prompt_hold_skill", "knn": "same_prompt_knn_skill"}  # a trivial answer's probe column
+
+
+EXACT = " (exact history)"
+
+
+def _prompt_labels(llm: pd.DataFrame) -> pd.Series:
+    """A trial's prompt strategy, marked when it ran exact history beside shifted rows of the same model and
+    prompt (the variant that measures the shifted approximation)."""
+    mode = llm["history_mode"] if "history_mode" in llm else pd.Series("sliding", index=llm.index)
+    strategies = [strategy_text(r.get("prompt_strategy"), r.get("retrieve_k", 3), r.get("memory", "demonstrations"),
+                                r.get("distance", "l2")) for _, r in llm.iterrows()]
+    shifted = {(m, s) for m, s, h in zip(llm["model"], strategies, mode) if h == "shifted"}
+    return pd.Series([s + EXACT if h != "shifted" and (m, s) in shifted else s
+                      for m, s, h in zip(llm["model"], strategies, mode)], index=llm.index, dtype=object)
+
+
+def study_table(trials: pd.DataFrame, probes: pd.DataFrame, planned: pd.DataFrame | None = None) -> pd.DataFrame:
+    """One row per (model, prompt strategy) in either stage: its probe skill and gain over the prompt's better
+    trivial answer, and its closed loop; the trivial answers' probe skill is read off any probe row of their
+    strategy (they do not depend on the model). `planned`: the experiment's LLM cells (model, prompt_strategy,
+    history_mode), so rows not run yet show as such. The seed policy last."""
+    llm = trials[trials["policy"] == "llm"] if "policy" in trials else trials.iloc[0:0]
+    llm = llm.assign(prompt_label=_prompt_labels(llm)) if not llm.empty else llm.assign(prompt_label=[])
+    cells = pd.concat([llm, planned if planned is not None else llm.iloc[0:0]], ignore_index=True)
+    labels = _prompt_labels(cells) if not cells.empty else pd.Series(dtype=object)
+    cell_keys = set(zip(cells.get("model", []), labels))
+    keys = list(dict.fromkeys([*zip(probes.get("model", []), probes.get("strategy", [])),
+                               *zip(cells.get("model", []), labels)]))
+    keys.sort(key=lambda k: (k[0] in TRIVIAL, list(MODEL_NAMES).index(k[0]) if k[0] in MODEL_NAMES else 99, k[1]))
+    out = []
+    for model, label in keys:
+        strategy = label.removesuffix(EXACT)
+        row = {"model": MODEL_NAMES.get(model, model), "prompt": label}
+        mine = probes[probes["strategy"] == strategy] if len(probes) else probes
+        mine = mine if model in TRIVIAL or mine.empty else mine[mine["model"] == model]
+        if mine.empty or label != strategy:
+            row["probe skill [95%]"] = "not run yet" if label == strategy else "-"
+            row["gain over the prompt's trivial answer [95%]"] = "-"
+        elif model in TRIVIAL:
+            row["probe skill [95%]"] = f"{float(mine.iloc[0][TRIVIAL[model]]):.3f}"
+            row["gain over the prompt's trivial answer [95%]"] = "-"
+        else:
+            r = mine.iloc[0]
+            row["probe skill [95%]"] = _interval(r["skill"], r["skill_low"], r["skill_high"])
+            row["gain over the prompt's trivial answer [95%]"] = _interval(r["gain"], r["gain_low"], r["gain_high"],
+                                                                           signed=True)
+        row.update(_closed_loop(llm[(llm["model"] == model) & (llm["prompt_label"] == label)],
+                                in_study=(model, label) in cell_keys))
+        out.append(row)
+    if "policy" in trials:
+        rl = trials[trials["policy"] == "rl"]
+        if not rl.empty:
+            out.append({"model": "seed policy (PPO)", "prompt": "-", "probe skill [95%]": "-",
+                        "gain over the prompt's trivial answer [95%]": "-", **_closed_loop(rl)})
+    return pd.DataFrame(out)
+
+
+def _closed_loop(g: pd.DataFrame, in_study: bool = True) -> dict:
+    """A row's closed-loop columns (`in_study`: the experiment's closed loop holds the row, run or not)."""
+    if g.empty:
+        return {"closed loop: NWT": "not run yet" if in_study else "probe only", "success [95%]": "-", "distance (m)": "-", "s / query": "-",
+                "replies repeating / copying": "-"}
+    n, wins = len(g), int(g["success"].sum())
+    low, high = wilson(wins, n)
+    model = g["policy"].eq("llm").all() and g["model"].iloc[0] not in TRIVIAL
+    repeat = g["repeat_fraction"].dropna() if "repeat_fraction" in g else pd.Series(dtype=float)
+    copy = g["copy_fraction"].dropna() if "copy_fraction" in g else pd.Series(dtype=float)
+    return {"closed loop: NWT": f"{g['nwt'].mean():.2f}", "success [95%]": f"{wins}/{n} [{low:.2f}, {high:.2f}]",
+            "distance (m)": f"{g['distance_m'].mean():.1f}",
+            "s / query": f"{g['latency_mean_s'].mean():.1f}" if model and "latency_mean_s" in g else "-",
+            "replies repeating / copying": f"{repeat.mean():.2f} / {copy.mean():.2f}" if len(repeat) else "-"}
+
+
+def study_section(trials: pd.DataFrame, probes: pd.DataFrame, planned: pd.DataFrame | None = None) -> list[str]:
+    """The study's headline table (what the README copies), when the store holds a probe stage or more than one
+    prompt strategy."""
+    strategies = trials["prompt_strategy"].dropna().unique() if "prompt_strategy" in trials else []
+    if probes.empty and len(strategies) < 2:  # not a study of prompt strategies
+        return []
+    table = study_table(trials, probes, planned)
+    if table.empty:
+        return []
+    return ["## The study: each model and prompt, probe and closed loop", "",
+            "Probe: teacher-forced skill at the closed loop's history, with the gain over the better of the same "
+            "prompt's trivial answers (paired 95% interval). Closed loop: normalized walking time, success with its "
+            "Wilson interval, distance walked in the 10 s evaluated, seconds per query (2 threads) and the fraction "
+            "of replies that repeat the previous action or copy an example line verbatim. Embedded models run "
+            "`shifted` history (llama.cpp's KV-cache reuse, an approximation); a row marked exact history reads "
+            "the same prompts without it, on the same seeds, and measures the approximation's effect.", "", "<!-- study table -->", "", to_markdown(table), "",
+            "<!-- end of study table -->", ""]
+
+
 def _phase_end(r) -> float | None:
     """s after the takeover at which the robot first fell or stopped walking (None: it walked to the end)."""
     ends = [t for t in (r.get("fall_time"), r.get("stop_time")) if t is not None and not pd.isna(t)]
@@ -157,13 +254,13 @@ def diagnostics_section(trials: pd.DataFrame, out: Path, name: str, label: str) 
              "computed alongside, never shown to the model).", "", to_markdown(diagnostics_table(llm, label)), ""]
     figures = []
     models = llm[~llm["model"].isin(("hold", "knn", "replay", "oracle", "default"))]
-    if not models.empty:
-        best = models.sort_values(["nwt", "seed"], ascending=[False, True]).iloc[0]
-        figure = targets_figure(best, f"{best[label]}, seed {int(best['seed'])}: NWT {best['nwt']:.2f}",
-                                out / "figures" / f"{name}_targets.png")
+    for key, group in models.groupby(label, sort=False):
+        best = group.sort_values(["nwt", "seed"], ascending=[False, True]).iloc[0]
+        figure = targets_figure(best, f"{key}, seed {int(best['seed'])}: NWT {best['nwt']:.2f}",
+                                out / "figures" / f"{name}_targets_{key}.png")
         if figure is not None:
             figures.append(figure)
-            lines += [f"One trial's replies against the seed policy ({best[label]}, seed {int(best['seed'])}, the "
-                      "row's longest walk):", "", f"![replies against the seed policy](figures/{figure.name})", ""]
+            lines += [f"{key}: the replies of its longest walk (seed {int(best['seed'])}, NWT {best['nwt']:.2f}) "
+                      "against the seed policy's actions for the same states:", "",
+                      f"![{key}: replies against the seed policy](figures/{figure.name})", ""]
     return lines, figures
-

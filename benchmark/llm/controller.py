@@ -72,13 +72,15 @@ class LLMSettings:
                                         "sliding for the others", choices=HISTORY_MODES)
     prompt_strategy: str = setting(DEFAULT_STRATEGY, "which examples the prompt shows above the current input: "
                                    + "; ".join(f"{s.name}: {s.help}" for s in STRATEGIES.values()),
-                                   choices=tuple(STRATEGIES), flag="--prompt-strategy", noun="prompt strategy")
-    retrieve_k: int = setting(3, "pairs a retrieving strategy (nearest, nearest-only) shows", positive=True)
+                                   choices=tuple(STRATEGIES), flag="--prompt-strategy", noun="prompt strategy",
+                                   added_later=True)
+    retrieve_k: int = setting(3, "pairs a retrieving strategy (nearest, nearest-only) shows", positive=True,
+                              added_later=True)
     memory: str = setting("demonstrations", "what retrieval reads: demonstrations (every seed-policy pair before the "
                                             "takeover, fixed for the trial), window (the pairs shown) or both",
-                          choices=MEMORIES)
+                          choices=MEMORIES, added_later=True)
     distance: str = setting("l2", "retrieval's distance on the written inputs: l2 (squared Euclidean, as knn) or l1",
-                            choices=DISTANCES)
+                            choices=DISTANCES, added_later=True)
     prompt_parts: tuple[str, ...] = setting(PARTS, "description parts", choices=PARTS)
     encoding: str = setting(DEFAULT_ENCODING, "numbers: " + "; ".join(f"{k} {e.title}" for k, e in ENCODINGS.items()),
                             choices=tuple(ENCODINGS))
@@ -333,9 +335,14 @@ class LLMPolicy:
 def strategy_label(settings: LLMSettings) -> str:
     """The prompt strategy as reports name it: `nearest (K 3, demonstrations, l2)`; the paper's is `chronological`."""
     s = settings
-    if not STRATEGIES[s.prompt_strategy].retrieves:
-        return s.prompt_strategy
-    return f"{s.prompt_strategy} (K {s.retrieve_k}, {s.memory}, {s.distance})"
+    return strategy_text(s.prompt_strategy, s.retrieve_k, s.memory, s.distance)
+
+
+def strategy_text(strategy: str, k: int, memory: str, distance: str) -> str:
+    """`strategy_label` from a row's columns."""
+    if not STRATEGIES[strategy].retrieves:
+        return strategy
+    return f"{strategy} (K {int(k)}, {memory}, {distance})"
 
 
 def closed_loop_diagnostics(queries: list[Query], demonstrations, enc) -> dict:

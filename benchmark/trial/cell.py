@@ -64,6 +64,13 @@ class CellSpec:
                 out[key] = "+".join(value) if isinstance(value, (tuple, list)) else value
         return out
 
+    def id_params(self) -> dict:
+        """`params` as trial ids read them: a policy setting added after results were stored is left out at its
+        default, so a store made before it keeps its ids (nothing reruns)."""
+        later = {f.name: f.default for f in dataclasses.fields(self.settings) if f.metadata.get("added_later")} \
+            if self.settings is not None else {}
+        return {k: v for k, v in self.params().items() if not (k in later and v == later[k])}
+
     def label(self) -> str:
         return f"{self.sim}/{self.robot}/{self.terrain}/{self.policy}"
 

@@ -15,7 +15,7 @@ from benchmark.evaluate.probe import ProbeRun, ProbeSetConfig, _prompts, answer_
 from benchmark.llm.controller import LLMSettings, takeover_prompt
 from benchmark.llm.encodings import get_encoding
 from benchmark.llm.prompt import PromptConfig, build_prompt
-from benchmark.llm.reference import HoldModel, knn_answer
+from benchmark.llm.reference import HoldModel
 from benchmark.llm.strategies import NEAREST_HEADER, STRATEGIES, gait_period, nearest_last, retrieval_pool
 from benchmark.trial.cell import make_cell
 from benchmark.trial.trials import KeepPolicy, run_cell

@@ -1,4 +1,5 @@
-"""The docs site builds with `mkdocs build --strict` (broken links and missing pages fail it)."""
+"""The docs site builds with `mkdocs build --strict` (broken links and missing pages fail it); the pages that copy
+a report's table hold it as the report wrote it."""
 
 from __future__ import annotations
 
@@ -20,3 +21,19 @@ def test_the_docs_site_builds_strict_and_holds_the_leaderboard(tmp_path):
                  "reports/leaderboard.html"):
         assert (site / page).is_file(), page
     assert "fonts.googleapis" not in (site / "index.html").read_text()  # the site works offline
+
+
+def study_block(text: str) -> str:
+    """The lines between a `<!-- study table ... -->` marker and `<!-- end of study table -->`."""
+    lines = text.splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("<!-- study table"))
+    end = lines.index("<!-- end of study table -->")
+    return "\n".join(lines[start + 1:end]).strip()
+
+
+def test_the_readme_and_docs_show_the_prompting_reports_study_table():
+    """The README's and docs' study table is the one `bench report reports/data/prompting` wrote, to the cell."""
+    report = study_block((ROOT / "reports" / "prompting.md").read_text())
+    assert report.startswith("| model | prompt |")
+    for page in ("README.md", "docs/prompting.md"):
+        assert study_block((ROOT / page).read_text()) == report, f"{page}: copy the study table from reports/prompting.md"

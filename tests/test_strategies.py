@@ -166,11 +166,20 @@ controller = ["hold_nearest", "knn_nearest"]
 hold_nearest = { policy = "llm", model = "hold", prompt_strategy = "nearest-only" }
 knn_nearest = { policy = "llm", model = "knn", prompt_strategy = "nearest-only" }
 [probe]
+probe_set = "own_probe.npz"
 cells = ["a1/flat"]
 items = 2
 grid = { model = ["hold", "knn"], prompt_strategy = ["chronological", "nearest-only"] }
 ''')
     store, bench = tmp_path / "store", [sys.executable, "-m", "benchmark.cli"]
+    missing = subprocess.run([*bench, "sweep", str(grid), "--results", str(store), "--dry-run"], capture_output=True,
+                             text=True, cwd=ROOT, timeout=300)
+    assert missing.returncode == 2 and "probe.probe_set: no file" in missing.stderr
+    assert "Traceback" not in missing.stderr and len(missing.stderr.strip().splitlines()) == 1
+    made = subprocess.run([*bench, "probe", "--make", "--out", str(tmp_path / "own_probe.npz")], capture_output=True,
+                          text=True, cwd=ROOT, timeout=300)
+    assert made.returncode == 0, made.stderr
+    digest = made.stdout.split("digest ")[1].split()[0]
     out = subprocess.run([*bench, "sweep", str(grid), "--results", str(store)], capture_output=True, text=True,
                          cwd=ROOT, timeout=300)
     assert out.returncode == 0, out.stderr
@@ -182,10 +191,13 @@ grid = { model = ["hold", "knn"], prompt_strategy = ["chronological", "nearest-o
 
     frame = load_results(store)
     probes = frame[frame["kind"] == "probe"].set_index(["model", "prompt_strategy"])
+    assert set(probes["probe_digest"]) == {digest}  # the experiment's own probe set, not the shipped one
     # hold on a nearest-last prompt is the prompt's own trivial answer: no gain; on the chronological one it is 0 skill
     assert probes.loc[("hold", "nearest-only"), "gain"] == 0.0
     assert probes.loc[("hold", "chronological"), "skill"] == 0.0
-    assert probes.loc[("knn", "chronological"), "gain"] == 0.0
+    knn = probes.loc[("knn", "chronological")]  # the knn model is the prompt's own knn answer, item by item
+    assert knn["skill"] == knn["same_prompt_knn_skill"]
+    assert knn["gain"] == pytest.approx(knn["skill"] - max(knn["same_prompt_hold_skill"], knn["skill"]))
     report = subprocess.run([*bench, "report", str(store), "--out", str(tmp_path / "reports")], capture_output=True,
                             text=True, cwd=ROOT, timeout=300)
     assert report.returncode == 0, report.stderr

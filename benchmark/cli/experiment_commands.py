@@ -71,7 +71,8 @@ def cmd_sweep(args, overrides_text: list[str], only_text: list[str]) -> int:
             from benchmark.trial.resources import Runtime
 
             ran, stored = run_probe_stage(jobs, store, Runtime(threads=args.threads), draft=experiment.probe.get("draft"),
-                                          command=" ".join(["bench", *args.argv]))
+                                          command=" ".join(["bench", *args.argv]),
+                                          **({"probe_path": experiment.probe_set} if experiment.probe_set else {}))
             print(f"{experiment.name} probe: {ran} run(s), {stored} already stored; results in {store.root}")
         if not trials:
             return 0
@@ -111,7 +112,7 @@ def _stages(experiment, overrides: dict, only: dict, stage: str) -> tuple[list, 
         raise ExperimentError(f"--only: unknown setting '{unknown[0]}'; valid: {', '.join(sorted(trial_keys | probe_keys))}")
     jobs = trials = []
     if stage != "closed-loop" and experiment.probe and all(k in probe_keys for k in only):
-        jobs = probe_jobs(experiment, load_probe_set(DEFAULT_PROBE).digest, overrides, only)
+        jobs = probe_jobs(experiment, load_probe_set(experiment.probe_set or DEFAULT_PROBE).digest, overrides, only)
     if stage != "probe" and all(k in trial_keys for k in only):
         trials = experiment.trials(overrides, only)
     return jobs, trials

@@ -97,6 +97,7 @@ def run_probe_stage(jobs: list[ProbeJob], store: ResultStore, runtime: Runtime, 
         answers = answer_walks(probe, run, runtime, partial=store.root / "partial" / f"{job.id}.json",
                                progress=ProbeProgress())
         store.write({**probe_row(job, summarize_answers(answers), answers), **meta,
+                     "probe_seed_policies": json.dumps(probe.meta.get("seed_policy_sha256", {}), sort_keys=True),
                      "trial_wall_s": time.perf_counter() - started, "load_1m": os.getloadavg()[0]})
         (store.root / "partial" / f"{job.id}.json").unlink(missing_ok=True)
     if todo:

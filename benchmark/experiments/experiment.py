@@ -81,7 +81,12 @@ class Experiment:
     seeds: tuple[int, ...]
     source: Path | None = None
     paper: dict = field(default_factory=dict)  # {"axis", "source", metric -> {axis value (text) -> figure}}
-    probe: dict = field(default_factory=dict)  # {"grid", "cells", "window", "items", "draft"}: the probe stage
+    probe: dict = field(default_factory=dict)  # {"grid", "cells", "window", "items", "draft", "probe_set"}: the probe stage
+
+    @property
+    def probe_set(self) -> Path | None:
+        """The probe set the probe stage scores on (None: the shipped one)."""
+        return Path(self.probe["probe_set"]) if self.probe.get("probe_set") else None
 
     def probe_settings(self, overrides: dict | None = None, only: dict | None = None) -> list[tuple[dict, dict]]:
         """(LLM settings, labels) of every combination of the probe's grid: the file's [fixed] LLM settings, then
@@ -208,7 +213,7 @@ def load_experiment(name_or_path: str) -> Experiment:
     return experiment
 
 
-PROBE_KEYS = ("grid", "cells", "window", "items", "draft")
+PROBE_KEYS = ("grid", "cells", "window", "items", "draft", "probe_set")
 PROBE_IGNORES = ("sim", "robot", "terrain", "terrain_seed", "policy", "duration", "heading_hold")  # the probe set's
 
 
@@ -217,6 +222,11 @@ def _probe_table(path: Path, probe: dict, variants: dict) -> dict:
     unknown = [k for k in probe if k not in PROBE_KEYS]
     if unknown:
         raise ExperimentError(f"{path}: probe: unknown key '{unknown[0]}'; valid: {', '.join(PROBE_KEYS)}")
+    if "probe_set" in probe:  # a probe set .npz, relative to the experiment file
+        found = (path.parent / probe["probe_set"]).resolve()
+        if not found.is_file():
+            raise ExperimentError(f"{path}: probe.probe_set: no file '{found}' (make one: bench probe --make --out PATH)")
+        probe = {**probe, "probe_set": str(found)}
     for axis, values in probe.get("grid", {}).items():
         if not isinstance(values, list) or not values:
             raise ExperimentError(f"{path}: probe.grid.{axis} must be a non-empty list")

@@ -4,6 +4,7 @@ with their figures. Both read only the numbers the store holds."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -76,6 +77,14 @@ def probe_figure(rows: pd.DataFrame, path: Path) -> Path:
     return save_figure(fig, path, dpi=120)
 
 
+def _made_with(row: pd.Series) -> str:
+    """`, made with the seed policies a1 X`, when the row recorded them."""
+    text = row.get("probe_seed_policies")
+    if not isinstance(text, str):
+        return ""
+    return "; made with the seed policies " + ", ".join(f"{robot} {sha[:12]}" for robot, sha in json.loads(text).items())
+
+
 def probe_section(rows: pd.DataFrame, out: Path, name: str, expected: int | None = None) -> tuple[list[str], list[Path]]:
     """Markdown lines and the figure for an experiment's probe stage (empty when it has none); `expected`: the
     probe grid's size, to say when the stage is partial."""
@@ -84,8 +93,8 @@ def probe_section(rows: pd.DataFrame, out: Path, name: str, expected: int | None
     figure = probe_figure(rows, out / "figures" / f"{name}_probe.png")
     first = rows.iloc[0]
     lines = ["## Probe stage: each model and prompt strategy against its own prompt's trivial answers", "",
-             f"Teacher-forced imitation on the probe set `{first['probe_digest']}` ({first['probe_cells']}), history "
-             f"{int(first['history'])} ({first['window']}). Skill = 1 - error / error of freezing on the newest "
+             f"Teacher-forced imitation on the probe set `{first['probe_digest']}` ({first['probe_cells']}{_made_with(first)}), "
+             f"history {int(first['history'])} ({first['window']}). Skill = 1 - error / error of freezing on the newest "
              "action; every strategy is scored on the same items with the same normalizer. **Same prompt**: the "
              "prompt's own trivial answers, `hold` (copy its last example line) and `knn` (its nearest example's "
              "output). The gain is the model's skill minus the better of them, with a paired 95% bootstrap "

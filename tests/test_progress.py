@@ -104,3 +104,20 @@ def test_the_eta_after_a_slow_cold_query_is_within_2x_of_the_truth(monkeypatch):
     for at, eta in etas[6:-3]:  # once the window holds warm queries only
         truth = end - at
         assert truth / 2 <= max(eta, 0.5) <= 2 * truth + 0.5, (eta, truth)
+
+
+def test_probe_progress_eta_is_the_runs_mean_rate_and_counts_from_a_resumed_item(monkeypatch, capsys):
+    """10 s an item from the start: at 10 of 30 the ETA is 20 items x 10 s; a run resumed at item 10 counts from
+    there, not from 0."""
+    from benchmark.evaluate import probe
+
+    clock = [0.0]
+    monkeypatch.setattr(probe.time, "monotonic", lambda: clock[0])
+    for first in (1, 11):
+        progress = probe.ProbeProgress(every=10)
+        for done in range(first, 31):
+            clock[0] += 10.0
+            progress(done, 30)
+    lines = capsys.readouterr().err.splitlines()
+    assert lines[0] == "bench: probe: 10/30 items, ETA 3.3 min" and lines[2] == "bench: probe: 30/30 items"
+    assert lines[3] == "bench: probe: 20/30 items, ETA 1.7 min"

@@ -46,7 +46,6 @@ import numpy as np
 from benchmark.common.settings import SettingError, setting
 from benchmark.llm.controller import CONTROL_DT, LLMSettings, _new_model
 from benchmark.llm.encodings import get_encoding
-from benchmark.llm.progress import RecentRate
 from benchmark.llm.prompt import build_prompt, describe_robot
 from benchmark.llm.reference import HoldModel, knn_answer
 from benchmark.llm.replies import parse_reply, reply_constraint
@@ -466,14 +465,18 @@ def same_prompt_gain(answers: ItemAnswers, seed: int = 0) -> dict:
 
 
 class ProbeProgress:
-    """The `progress` of a probe run: a line every `every` items, with an ETA from the recent rate."""
+    """The `progress` of a probe run: a line every `every` items, with an ETA from the run's mean rate (each walk
+    starts with a cold read of its prompt, so a recent rate would forget the walks still to come)."""
 
     def __init__(self, every: int = 10) -> None:
-        self.every, self.rate = every, RecentRate(window=2 * every)
+        self.every, self.created, self.start = every, time.monotonic(), None
 
     def __call__(self, done: int, total: int) -> None:
-        self.rate.add(done)
+        now = time.monotonic()
+        if self.start is None:  # the first answer of this run, timed from the start (a resumed run starts past 0)
+            self.start = (self.created, done - 1)
         if done == total or done % self.every == 0:
-            eta = self.rate.eta(total - done) if done < total else None
-            tail = f", ETA {eta / 60:.1f} min" if eta is not None else ""
+            (t0, n0), tail = self.start, ""
+            if done < total and done > n0 and now > t0:
+                tail = f", ETA {(now - t0) / (done - n0) * (total - done) / 60:.1f} min"
             print(f"bench: probe: {done}/{total} items{tail}", file=sys.stderr, flush=True)

@@ -146,6 +146,25 @@ def test_cached_tokens_come_from_llamacpps_own_figures(embedded):
     assert cold.cached_tokens == 0 and cold.prompt_tokens == again.prompt_tokens
 
 
+def test_a_retrieval_block_above_the_query_still_reuses_the_cached_prefix_on_gemma(embedded):
+    """The `nearest` prompt changes ~1000 tokens before its end (the retrieved pairs), further back than Gemma 3's
+    sliding-window layers keep by default (measured: every such query read whole, 0 tokens cached): with the full
+    cache for those layers the window above the block is read from the cache."""
+    from benchmark.evaluate.probe import DEFAULT_PROBE, ProbeRun, _prompts, load_probe_set
+    from benchmark.llm.controller import LLMSettings
+    from benchmark.llm.prompt import build_prompt, describe_robot
+    from robots import load_robot
+
+    llm = LLMSettings(history=20, prompt_strategy="nearest")
+    items = _prompts(load_probe_set(DEFAULT_PROBE), ProbeRun(llm=llm, cells=("a1/flat",), items=2))
+    description = describe_robot(load_robot("a1"), llm.prompt)
+    prompts = [build_prompt(description, h, obs, llm.prompt, demo) for _, _, h, demo, obs, _ in list(items)[:2]]
+    first = embedded.complete(prompts[0], Sampling(), GRAMMAR, cold=True)
+    second = embedded.complete(prompts[1], Sampling(), GRAMMAR)
+    changed = second.prompt_tokens - second.cached_tokens
+    assert first.prompt_tokens > 4000 and 500 < changed < 2000, (first.prompt_tokens, second.cached_tokens)
+
+
 def test_429_with_retry_after_waits_and_latency_excludes_the_wait(embedded):
     proxy = Proxy(embedded.url, budget=10, status=429, fail_first=1, retry_after="1")
     try:

@@ -244,3 +244,17 @@ def test_the_study_table_joins_probe_and_closed_loop_and_says_what_is_missing():
     assert table.loc[("Gemma 3 270M", "chronological"), "closed loop: NWT"] == "not run yet"
     hold = table.loc[("hold (the prompt's last example line)", near)]
     assert hold["probe skill [95%]"] == "0.610" and hold["s / query"] == "-"
+
+
+def test_bench_latency_measures_each_prompt_strategy():
+    """`bench latency --strategies` gives one row per strategy; nearest-only reads a shorter prompt than the paper's."""
+    out = subprocess.run([sys.executable, "-m", "benchmark.cli", "latency", "--llm", "hold", "--histories", "10",
+                          "--modes", "sliding", "--strategies", "chronological", "nearest-only", "--queries", "2",
+                          "--no-drift", "--json"], capture_output=True, text=True, cwd=ROOT, timeout=300)
+    assert out.returncode == 0, out.stderr
+    rows = {r["strategy"]: r for r in json.loads(out.stdout)["rows"]}
+    assert set(rows) == {"chronological", "nearest-only"} and all(r["queries"] == 2 for r in rows.values())
+    assert rows["nearest-only"]["prompt_tokens"] < rows["chronological"]["prompt_tokens"]
+    bad = subprocess.run([sys.executable, "-m", "benchmark.cli", "latency", "--strategies", "closest"],
+                         capture_output=True, text=True, cwd=ROOT, timeout=60)
+    assert bad.returncode == 2 and "closest" in bad.stderr and "Traceback" not in bad.stderr

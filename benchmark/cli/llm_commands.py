@@ -10,11 +10,12 @@ from pathlib import Path
 
 def cmd_latency(args, threads: int | None) -> int:
     from benchmark.llm.latency import measure
+    from benchmark.llm.strategies import DEFAULT_STRATEGY
     from benchmark.llm.models import check_model_spec
 
     check_model_spec(args.llm)
     rows = measure(args.llm, args.histories, args.modes, args.queries, threads, args.llm_url, drift=not args.no_drift,
-                   drafts=tuple(args.drafts))
+                   drafts=tuple(args.drafts), strategies=tuple(args.strategies))
     if args.json:
         print(json.dumps({"model": args.llm, "rows": rows}))
         return 0
@@ -25,6 +26,10 @@ def cmd_latency(args, threads: int | None) -> int:
              "| history | mode | draft | prompt tokens | first (s) | mean (s) | p95 (s) | after the first (s) | "
              "identical to cold | mean abs action diff | outcome | same as undrafted |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    by_strategy = args.strategies != [DEFAULT_STRATEGY]  # the prompt strategy column, when one was asked for
+    if by_strategy:
+        lines[2] = "| strategy " + lines[2]
+        lines[3] = "|---" + lines[3]
     for r in rows:
         after = f"{r['latency_after_first_s']:.2f}" if r["latency_after_first_s"] is not None else "-"
         same = f"{r['identical_to_cold']:.2f}" if r.get("identical_to_cold") is not None else "-"
@@ -32,7 +37,7 @@ def cmd_latency(args, threads: int | None) -> int:
         changed = {True: "changed", False: "same"}.get(r.get("outcome_changed"), "-")
         mode = r["mode"] + (" (approximate)" if r["approximate"] else "")
         undrafted = f"{r['same_as_no_draft']:.2f}" if r.get("same_as_no_draft") is not None else "-"
-        lines.append(f"| {r['history']} | {mode} | {r['draft']} | {r['prompt_tokens']:.0f} | {r['latency_first_s']:.2f} | "
+        lines.append((f"| {r['strategy']} " if by_strategy else "") + f"| {r['history']} | {mode} | {r['draft']} | {r['prompt_tokens']:.0f} | {r['latency_first_s']:.2f} | "
                      f"{r['latency_mean_s']:.2f} | {r['latency_p95_s']:.2f} | {after} | {same} | {diff} | {changed} | "
                      f"{undrafted} |")
     print("\n".join(lines))

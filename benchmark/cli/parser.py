@@ -24,6 +24,7 @@ from benchmark.cli.options import _cell_options, _doc, _number, _Parser, add_fie
 from benchmark.evaluate.probe import ProbeRun
 from benchmark.llm.controller import STRATEGY_FIELDS, LLMSettings
 from benchmark.llm.latency import MODES as LATENCY_MODES
+from benchmark.llm.strategies import DEFAULT_STRATEGY, STRATEGIES
 from benchmark.training.train import TrainConfig
 from benchmark.trial.registry import POLICIES
 from benchmark.trial.resources import DRAFTS, Runtime
@@ -130,6 +131,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help=f"history modes (default {' '.join(LATENCY_MODES)}; shifted is approximate)")
     lat.add_argument("--drafts", nargs="+", default=[Runtime.draft], choices=DRAFTS,
                      help=f"speculative decoding to measure (default {Runtime.draft}; 'ngram none' compares them)")
+    lat.add_argument("--strategies", nargs="+", default=[DEFAULT_STRATEGY], choices=list(STRATEGIES),
+                     help=f"prompt strategies to measure (default {DEFAULT_STRATEGY}; what each re-reads per query: "
+                          "docs/prompting.md)")
     lat.add_argument("--no-drift", action="store_true", help="skip the cold recompute of every prompt")
     lat.add_argument("--out", default=None, metavar="PATH.md", help="also write the table as a markdown report")
     lat.add_argument("--queries", type=_number(int, True), default=8, help="LLM queries per cell (default 8)")

@@ -98,7 +98,10 @@ def probe_section(rows: pd.DataFrame, out: Path, name: str, expected: int | None
              "action; every strategy is scored on the same items with the same normalizer. **Same prompt**: the "
              "prompt's own trivial answers, `hold` (copy its last example line) and `knn` (its nearest example's "
              "output). The gain is the model's skill minus the better of them, with a paired 95% bootstrap "
-             "interval: at or below 0 the prompt, not the model, carries the imitation.", "",
+             "interval: at or below 0 the prompt, not the model, carries the imitation. s/query is the median latency as "
+             "measured when each reply was made, under the load of that moment (a reply read from the on-disk cache "
+             "keeps its first measurement: wall near 0); `bench latency --strategies` measures speed per strategy "
+             "on its own.", "",
              to_markdown(probe_table(rows)), "", f"![probe by strategy](figures/{figure.name})", ""]
     if expected is not None and len(rows) < expected:
         lines[2:2] = [f"**Partial stage**: {len(rows)} of the probe grid's {expected} runs (`bench sweep --stage probe` "

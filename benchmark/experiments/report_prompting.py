@@ -15,6 +15,10 @@ from benchmark.common.tables import to_markdown, wilson
 from benchmark.llm.controller import strategy_text
 
 DIAGNOSTICS = ("repeat_fraction", "copy_fraction", "demo_distance_mean", "oracle_distance_mean")
+MODEL_NAMES = {"embedded": "Gemma 3 270M", "qwen2.5-coder-0.5b": "Qwen2.5-Coder 0.5B",
+               "qwen2.5-coder-1.5b": "Qwen2.5-Coder 1.5B", "hold": "hold (the prompt's last example line)",
+               "knn": "knn (the prompt's nearest example)"}
+TRIVIAL = {"hold": "same_prompt_hold_skill", "knn": "same_prompt_knn_skill"}  # a trivial answer's probe column
 SHOWN_JOINTS = (3, 4, 5, 1)  # FL hip, thigh, calf; FR thigh (canonical order)
 JOINT_NAMES = ("FR hip", "FR thigh", "FR calf", "FL hip", "FL thigh", "FL calf",
                "RR hip", "RR thigh", "RR calf", "RL hip", "RL thigh", "RL calf")
@@ -63,14 +67,14 @@ def probe_figure(rows: pd.DataFrame, path: Path) -> Path:
         mine = rows[rows["model"] == model].set_index("strategy")
         xs = [k + (i - (len(models) - 1) / 2) * width for k, s in enumerate(strategies) if s in mine.index]
         got = [mine.loc[s] for s in strategies if s in mine.index]
-        ax.bar(xs, [g["skill"] for g in got], width, label=model,
+        ax.bar(xs, [g["skill"] for g in got], width, label=MODEL_NAMES.get(model, model),
                yerr=[[g["skill"] - g["skill_low"] for g in got], [g["skill_high"] - g["skill"] for g in got]],
                capsize=2)
     trivial = rows.groupby("strategy")[["same_prompt_hold_skill", "same_prompt_knn_skill"]].first().max(axis=1)
     ax.scatter(range(len(strategies)), [trivial[s] for s in strategies], marker="_", s=900, color="black", zorder=3,
                label="the prompt's better trivial answer")
     ax.axhline(0.0, color="grey", lw=0.8, ls=":")
-    ax.set_xticks(range(len(strategies)), strategies, fontsize=8)
+    ax.set_xticks(range(len(strategies)), [name.replace(" (", "\n(") for name in strategies], fontsize=8)
     ax.set_ylabel("probe skill (1 - error / hold's error)")
     ax.legend(fontsize=7)
     ax.set_title("Probe skill by prompt strategy, against what each prompt gives away", fontsize=10)
@@ -107,12 +111,6 @@ def probe_section(rows: pd.DataFrame, out: Path, name: str, expected: int | None
         lines[2:2] = [f"**Partial stage**: {len(rows)} of the probe grid's {expected} runs (`bench sweep --stage probe` "
                       "resumes).", ""]
     return lines, [figure]
-
-
-MODEL_NAMES = {"embedded": "Gemma 3 270M", "qwen2.5-coder-0.5b": "Qwen2.5-Coder 0.5B",
-               "qwen2.5-coder-1.5b": "Qwen2.5-Coder 1.5B", "hold": "hold (the prompt's last example line)",
-               "knn": "knn (the prompt's nearest example)"}
-TRIVIAL = {"hold": "same_prompt_hold_skill", "knn": "same_prompt_knn_skill"}  # a trivial answer's probe column
 
 
 EXACT = " (exact history)"

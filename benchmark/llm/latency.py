@@ -88,7 +88,8 @@ def measure(model_spec: str, histories: list[int], modes: list[str], queries: in
                 row.update(_drift(policy))
             rows.append(row)
             if bar.disable:  # not a terminal (nohup, CI, a pipe): a line per cell instead of nothing
-                print(f"bench: latency cell {len(rows)}/{len(cells)} (history {history}, {mode}, draft {draft}, {strategy}): "
+                named = f", {strategy}" if strategy != DEFAULT_STRATEGY else ""
+                print(f"bench: latency cell {len(rows)}/{len(cells)} (history {history}, {mode}, draft {draft}{named}): "
                       f"{row['latency_mean_s']:.2f} s a query, {time.perf_counter() - started:.0f} s so far",
                       file=sys.stderr, flush=True)
         finally:

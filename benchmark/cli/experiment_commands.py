@@ -67,12 +67,13 @@ def cmd_sweep(args, overrides_text: list[str], only_text: list[str]) -> int:
         return 0
     try:
         if jobs:
+            from benchmark.evaluate.probe import DEFAULT_PROBE
             from benchmark.evaluate.study import run_probe_stage
             from benchmark.trial.resources import Runtime
 
             ran, stored = run_probe_stage(jobs, store, Runtime(threads=args.threads), draft=experiment.probe.get("draft"),
                                           command=" ".join(["bench", *args.argv]),
-                                          **({"probe_path": experiment.probe_set} if experiment.probe_set else {}))
+                                          probe_path=experiment.probe_set or DEFAULT_PROBE)
             print(f"{experiment.name} probe: {ran} run(s), {stored} already stored; results in {store.root}")
         if not trials:
             return 0

@@ -43,6 +43,7 @@ from benchmark.evaluate.probe import (
 from benchmark.experiments.experiment import Trial
 from benchmark.llm.controller import STRATEGY_FIELDS, LLMSettings, is_embedded, strategy_label
 from benchmark.llm.models import check_model_spec
+from benchmark.llm.reference import TRIVIAL_ANSWERS
 from benchmark.llm.strategies import DEFAULT_STRATEGY, STRATEGIES
 from benchmark.trial.cell import make_cell
 from benchmark.trial.resources import Runtime
@@ -290,9 +291,6 @@ def load_rows(store: Path | str = DEFAULT_STORE) -> list[dict]:
     return rows
 
 
-TRIVIAL = ("hold", "knn")  # the same prompt's trivial answers: its last example line, and its nearest example's
-
-
 def trivial_gain(row: dict, rows: list[dict]) -> tuple[str, float, float, float] | None:
     """A model row's probe skill minus the better of its own prompt's trivial answers, with a paired 95% interval:
     the `hold` and `knn` reference rows scored on the same probe set, settings and prompt strategy (their items
@@ -302,7 +300,7 @@ def trivial_gain(row: dict, rows: list[dict]) -> tuple[str, float, float, float]
     mine = ItemAnswers.from_json(row["probe_items"])
     best = None
     for ref in rows:
-        if (ref.get("kind") != "reference" or ref["model"] not in TRIVIAL or ref["probe_digest"] != row["probe_digest"]
+        if (ref.get("kind") != "reference" or ref["model"] not in TRIVIAL_ANSWERS or ref["probe_digest"] != row["probe_digest"]
                 or ref["probe_settings"] != row["probe_settings"] or row_strategy(ref) != row_strategy(row)):
             continue
         theirs = subset(ItemAnswers.from_json(ref["probe_items"]), sorted(set(mine.cells)))

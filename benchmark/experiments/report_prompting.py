@@ -13,12 +13,13 @@ import pandas as pd
 from benchmark.common.figures import save_figure
 from benchmark.common.tables import to_markdown, wilson
 from benchmark.llm.controller import strategy_text
+from benchmark.llm.reference import REFERENCE_KINDS, TRIVIAL_ANSWERS
 
 DIAGNOSTICS = ("repeat_fraction", "copy_fraction", "demo_distance_mean", "oracle_distance_mean")
 MODEL_NAMES = {"embedded": "Gemma 3 270M", "qwen2.5-coder-0.5b": "Qwen2.5-Coder 0.5B",
                "qwen2.5-coder-1.5b": "Qwen2.5-Coder 1.5B", "hold": "hold (the prompt's last example line)",
                "knn": "knn (the prompt's nearest example)"}
-TRIVIAL = {"hold": "same_prompt_hold_skill", "knn": "same_prompt_knn_skill"}  # a trivial answer's probe column
+TRIVIAL = {name: f"same_prompt_{name}_skill" for name in TRIVIAL_ANSWERS}  # a trivial answer's probe column
 SHOWN_JOINTS = (3, 4, 5, 1)  # FL hip, thigh, calf; FR thigh (canonical order)
 JOINT_NAMES = ("FR hip", "FR thigh", "FR calf", "FL hip", "FL thigh", "FL calf",
                "RR hip", "RR thigh", "RR calf", "RL hip", "RL thigh", "RL calf")
@@ -133,9 +134,9 @@ def study_table(trials: pd.DataFrame, probes: pd.DataFrame, planned: pd.DataFram
     strategy (they do not depend on the model). `planned`: the experiment's LLM cells (model, prompt_strategy,
     history_mode), so rows not run yet show as such. The seed policy last."""
     llm = trials[trials["policy"] == "llm"] if "policy" in trials else trials.iloc[0:0]
-    llm = llm.assign(prompt_label=_prompt_labels(llm)) if not llm.empty else llm.assign(prompt_label=[])
     cells = pd.concat([llm, planned if planned is not None else llm.iloc[0:0]], ignore_index=True)
     labels = _prompt_labels(cells) if not cells.empty else pd.Series(dtype=object)
+    llm = llm.assign(prompt_label=labels.iloc[:len(llm)].to_numpy())  # labelled beside the planned cells, as the keys
     cell_keys = set(zip(cells.get("model", []), labels))
     keys = list(dict.fromkeys([*zip(probes.get("model", []), probes.get("strategy", [])),
                                *zip(cells.get("model", []), labels)]))
@@ -263,7 +264,7 @@ def diagnostics_section(trials: pd.DataFrame, out: Path, name: str, label: str) 
              "nearest demonstration action and from the seed policy's action for the same state (the oracle, "
              "computed alongside, never shown to the model).", "", to_markdown(diagnostics_table(llm, label)), ""]
     figures = []
-    models = llm[~llm["model"].isin(("hold", "knn", "replay", "oracle", "default"))]
+    models = llm[~llm["model"].isin(REFERENCE_KINDS)]
     for key, group in models.groupby(label, sort=False):
         best = group.sort_values(["nwt", "seed"], ascending=[False, True]).iloc[0]
         figure = targets_figure(best, f"{key}, seed {int(best['seed'])}: NWT {best['nwt']:.2f}",

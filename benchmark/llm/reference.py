@@ -146,3 +146,7 @@ class DefaultPoseModel(OracleModel):
 
     def set_reference(self, seed_action: np.ndarray, encoding) -> None:
         self.answer = encoding.encode(np.zeros_like(seed_action))
+
+
+REFERENCE_KINDS = tuple(m.kind for m in (HoldModel, KnnModel, ReplayModel, OracleModel, DefaultPoseModel))
+TRIVIAL_ANSWERS = (HoldModel.kind, KnnModel.kind)  # a prompt's own trivial answers: its last example line, its nearest

@@ -134,6 +134,22 @@ def test_a_server_answering_garbage_is_parse_failures_not_a_crash(probe):
     assert summary["skill"] == pytest.approx(0.0)  # an unparseable reply holds the last action, as in closed loop
 
 
+def test_replies_from_the_on_disk_cache_are_counted(probe, tmp_path, monkeypatch):
+    """The second read of the same prompts comes from the reply cache, and the summary says how many did."""
+    from test_llm_models import CannedServer
+
+    monkeypatch.setenv("PROMPTWALK_CACHE", str(tmp_path))
+    server = CannedServer(text=" [" + ", ".join(["50"] * 12) + "]")
+    try:
+        run = dataclasses.replace(_run(items=2), llm=LLMSettings(model="openai:m", url=server.url, history=10),
+                                  cells=("a1/flat",))
+        first, second = (summarize_answers(answer_items(probe, run)) for _ in range(2))
+    finally:
+        server.close()
+    assert first["items"] == second["items"] == 6
+    assert (first["cached_replies"], second["cached_replies"]) == (0, 6)
+
+
 def test_a_probe_file_of_another_version_or_corrupt_is_one_line(tmp_path, probe):
     path = save_probe_set(probe, tmp_path / "probe.npz")
     assert load_probe_set(path).digest == probe.digest

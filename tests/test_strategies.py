@@ -204,6 +204,14 @@ grid = { model = ["hold", "knn"], prompt_strategy = ["chronological", "nearest-o
     text = (tmp_path / "reports" / "tiny_prompting.md").read_text()
     assert "## Probe stage" in text and "## Closed-loop diagnostics" in text and "gain over the better" in text
     assert (tmp_path / "reports" / "figures" / "tiny_prompting_probe.png").is_file()
+    assert "cached replies" in text  # reply-cache hits are counted beside the probe's s/query
+    # each trial stores the base's forward position per control step: the progress its walking test read
+    for _, trial in frame[frame["kind"] != "probe"].iterrows():
+        x = np.asarray(trial["traj_base_x"], dtype=float)
+        takeover = int(round(trial["eval_start"] / trial["control_dt"])) - 1  # the state after the takeover's step
+        assert len(x) == trial["control_steps"] and x[-1] - x[takeover] == pytest.approx(trial["distance_m"], abs=2e-4)
+    assert (tmp_path / "reports" / "figures" / "tiny_prompting_progress.png").is_file()
+    assert "![progress after the takeover](figures/tiny_prompting_progress.png)" in text
     assert "## The study" in text and "<!-- study table -->" in text
     hold_row = next(line for line in text.splitlines()
                     if line.startswith("| hold (the prompt's last example line) | nearest-only (K 3, demonstrations, l2) |"))

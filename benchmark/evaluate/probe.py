@@ -210,6 +210,10 @@ class ProbeRun:
     cells: tuple[str, ...] | None = None  # "robot/terrain" names; None: every cell of the probe set
 
 
+OPTIONAL_FIELDS = ("prompt_hold_errors", "prompt_knn_errors", "cached")  # absent from records made before them
+BOOL_FIELDS = ("within_step", "parsed", "cached")
+
+
 @dataclass
 class ItemAnswers:
     """Per-item results of one model on one probe run, in the probe's item order."""
@@ -227,6 +231,7 @@ class ItemAnswers:
     # the same prompt's trivial answers: its last example line (`hold` on this prompt) and `knn` on its examples
     prompt_hold_errors: np.ndarray | None = None
     prompt_knn_errors: np.ndarray | None = None
+    cached: np.ndarray | None = None  # (N,) bool: from the on-disk reply cache (its latency is the first read's)
 
     def to_json(self, fields: tuple[str, ...] | None = None, digits: int | None = None) -> dict:
         """The named fields (default all) as JSON values, float arrays rounded to `digits` if given."""
@@ -246,11 +251,11 @@ class ItemAnswers:
     def from_json(cls, d: dict) -> ItemAnswers:
         """Answers from `to_json`; fields a compact record left out are zeros."""
         n = len(d["cells"])
-        optional = ("prompt_hold_errors", "prompt_knn_errors")
-        arrays = {f.name: np.array(d[f.name], dtype=bool if f.name in ("within_step", "parsed") else float)
-                  if f.name in d else (None if f.name in optional else np.zeros((n, 12) if f.name == "joint_errors"
-                                                                                else n))
-                  for f in dataclasses.fields(cls) if f.name not in ("cells", "wall_s")}
+        def absent(name: str) -> np.ndarray | None:
+            return None if name in OPTIONAL_FIELDS else np.zeros((n, 12) if name == "joint_errors" else n)
+
+        arrays = {f.name: np.array(d[f.name], dtype=bool if f.name in BOOL_FIELDS else float) if f.name in d
+                  else absent(f.name) for f in dataclasses.fields(cls) if f.name not in ("cells", "wall_s")}
         arrays["joint_errors"] = arrays["joint_errors"].reshape(-1, 12)
         return cls(list(d["cells"]), wall_s=float(d.get("wall_s", 0.0)), **arrays)
 
@@ -308,18 +313,19 @@ def answer_items(probe: ProbeSet, run: ProbeRun, runtime: Runtime = Runtime(), m
             diff = np.abs(answer - target)
             rows.append((walk.cell, diff.mean(), np.abs(held_q - target).mean(), diff,
                          bool(np.all(diff <= enc.resolution + 1e-9)), action is not None, reply.prompt_tokens,
-                         reply.completion_tokens, reply.latency_s, *(np.abs(a - target).mean() for a in trivial)))
+                         reply.completion_tokens, reply.latency_s, *(np.abs(a - target).mean() for a in trivial),
+                         reply.cached))
             if progress is not None:
                 progress(len(rows), total)
     finally:
         if owned:
             model.close()
-    cols = list(zip(*rows)) if rows else [[]] * 11
+    cols = list(zip(*rows)) if rows else [[]] * 12
     return ItemAnswers(list(cols[0]), np.array(cols[1]), np.array(cols[2]), np.array(cols[3]).reshape(-1, 12),
                        np.array(cols[4], dtype=bool), np.array(cols[5], dtype=bool), np.array(cols[6], dtype=float),
                        np.array(cols[7], dtype=float), np.array(cols[8], dtype=float),
                        wall_s=time.perf_counter() - started, prompt_hold_errors=np.array(cols[9], dtype=float),
-                       prompt_knn_errors=np.array(cols[10], dtype=float))
+                       prompt_knn_errors=np.array(cols[10], dtype=float), cached=np.array(cols[11], dtype=bool))
 
 
 def _decoded_or(text: str, enc, n: int, fallback: np.ndarray) -> np.ndarray:
@@ -333,7 +339,7 @@ def concat_answers(parts: list[ItemAnswers]) -> ItemAnswers:
     if not parts:
         return ItemAnswers([], *(np.zeros(0) for _ in range(2)), np.zeros((0, 12)), np.zeros(0, bool),
                            np.zeros(0, bool), *(np.zeros(0) for _ in range(3)))
-    optional = {f: np.concatenate([getattr(a, f) for a in parts]) for f in ("prompt_hold_errors", "prompt_knn_errors")
+    optional = {f: np.concatenate([getattr(a, f) for a in parts]) for f in OPTIONAL_FIELDS
                 if all(getattr(a, f) is not None for a in parts)}
     return ItemAnswers(sum((a.cells for a in parts), []),
                        *(np.concatenate([getattr(a, f) for a in parts]) for f in
@@ -440,6 +446,8 @@ def summarize_answers(answers: ItemAnswers) -> dict:
                 "prompt_tokens": float(answers.prompt_tokens.mean()),
                 "completion_tokens": float(answers.completion_tokens.mean()),
                 "latency_median_s": float(np.median(answers.latency_s)), "wall_s": answers.wall_s})
+    if answers.cached is not None:
+        out["cached_replies"] = int(answers.cached.sum())
     out["cells"] = {c: {"items": int((cells == c).sum()), "error": float(answers.errors[cells == c].mean()),
                         "skill": skill(answers.errors[cells == c], answers.hold_errors[cells == c], cells[cells == c]),
                         "within_step": float(answers.within_step[cells == c].mean())} for c in dict.fromkeys(cells)}

@@ -118,7 +118,7 @@ def probe_row(job: ProbeJob, summary: dict, answers) -> dict:
             "within_step": summary["within_step"], "parse_failures": summary["parse_failures"],
             "latency_median_s": summary["latency_median_s"], "prompt_tokens": summary["prompt_tokens"],
             "completion_tokens": summary["completion_tokens"], "wall_s": summary["wall_s"],
-            "same_prompt_hold_skill": same.get("hold_skill"), "same_prompt_knn_skill": same.get("knn_skill"),
+            "cached_replies": summary.get("cached_replies"), "same_prompt_hold_skill": same.get("hold_skill"), "same_prompt_knn_skill": same.get("knn_skill"),
             "same_prompt_best": same.get("best"), "gain": same.get("gain"), "gain_low": same.get("gain_low"),
             "gain_high": same.get("gain_high"), "item_errors": answers.errors.round(6).tolist(),
             "item_hold_errors": answers.hold_errors.round(6).tolist(),

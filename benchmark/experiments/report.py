@@ -27,7 +27,8 @@ from benchmark.common.fingerprint import describe
 from benchmark.common.tables import to_markdown, wilson
 from benchmark.experiments.experiment import ExperimentError, axes_of, load_experiment
 from benchmark.experiments.report_latency import latency_section, realtime_section
-from benchmark.experiments.report_prompting import diagnostics_section, probe_section, split_probe_rows, study_section
+from benchmark.experiments.report_prompting import (diagnostics_section, probe_section, split_probe_rows, step_times,
+                                                     study_section)
 from robots import load_robot
 
 FORMATS = ("md", "html", "csv")
@@ -79,11 +80,6 @@ def _with_spread(values: pd.Series, key: str, digits: int) -> str:
         low, high = wilson(int(values.sum()), len(values))
         return f"{mean:.{digits}f} [{low:.2f}, {high:.2f}]"
     return f"{mean:.{digits}f} ± {values.std(ddof=1) if len(values) > 1 else 0.0:.{digits}f}"
-
-
-def step_times(row: pd.Series, steps: int) -> np.ndarray:
-    """The times of a stored trajectory's steps: each is the state after its control step."""
-    return np.arange(1, steps + 1) * float(row["control_dt"])
 
 
 def repeated_targets(row: pd.Series) -> float:

@@ -25,6 +25,11 @@ JOINT_NAMES = ("FR hip", "FR thigh", "FR calf", "FL hip", "FL thigh", "FL calf",
                "RR hip", "RR thigh", "RR calf", "RL hip", "RL thigh", "RL calf")
 
 
+def step_times(row: pd.Series, steps: int) -> np.ndarray:
+    """The times of a stored trajectory's steps: each is the state after its control step."""
+    return np.arange(1, steps + 1) * float(row["control_dt"])
+
+
 def split_probe_rows(group: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
     """(closed-loop trials, probe rows) of one experiment's store."""
     if "kind" not in group:
@@ -40,6 +45,11 @@ def _interval(value, low, high, signed: bool = False) -> str:
     return f"{value:{f}} [{low:{f}}, {high:{f}}]"
 
 
+def _count(value) -> str:
+    """An integer count, or - where the row predates it."""
+    return "-" if value is None or pd.isna(value) else str(int(value))
+
+
 def probe_table(rows: pd.DataFrame) -> pd.DataFrame:
     out = []
     for r in rows.sort_values("cell_index").itertuples():
@@ -50,6 +60,7 @@ def probe_table(rows: pd.DataFrame) -> pd.DataFrame:
                     "gain over the better [95%]": _interval(r.gain, r.gain_low, r.gain_high, signed=True),
                     "within 1 step": round(float(r.within_step), 2), "parse failures": int(r.parse_failures),
                     "s/query (median)": round(float(r.latency_median_s), 2),
+                    "cached replies": _count(getattr(r, "cached_replies", None)),
                     "prompt tokens": int(round(float(r.prompt_tokens))), "wall (min)": round(float(r.wall_s) / 60, 1)})
     return pd.DataFrame(out)
 
@@ -105,8 +116,8 @@ def probe_section(rows: pd.DataFrame, out: Path, name: str, expected: int | None
              "output). The gain is the model's skill minus the better of them, with a paired 95% bootstrap "
              "interval: at or below 0 the prompt, not the model, carries the imitation. s/query is the median latency as "
              "measured when each reply was made, under the load of that moment (a reply read from the on-disk cache "
-             "keeps its first measurement: wall near 0); `bench latency --strategies` measures speed per strategy "
-             "on its own.", "",
+             "keeps its first measurement; `cached replies` counts them, - where a row predates the count); "
+             "`bench latency --strategies` measures speed per strategy on its own.", "",
              to_markdown(probe_table(rows)), "", f"![probe by strategy](figures/{figure.name})", ""]
     if expected is not None and len(rows) < expected:
         lines[2:2] = [f"**Partial stage**: {len(rows)} of the probe grid's {expected} runs (`bench sweep --stage probe` "
@@ -252,6 +263,53 @@ def targets_figure(row: pd.Series, title: str, path: Path) -> Path | None:
     return save_figure(fig, path, dpi=110)
 
 
+def progress_figure(trials: pd.DataFrame, label: str, path: Path) -> Path | None:
+    """Every trial's forward progress after the takeover, one panel per row; a + marks where a stop began (the first
+    window of the walking test's length with too little progress), an x a fall. None when no trial stored its base
+    trajectory."""
+    if "traj_base_x" not in trials:
+        return None
+    have = trials[trials["traj_base_x"].map(lambda x: isinstance(x, (list, np.ndarray)) and len(x) > 0)]
+    if have.empty:
+        return None
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    groups = list(have.groupby(label, sort=False))
+    cols = min(3, len(groups))
+    rows = -(-len(groups) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(3.4 * cols, 2.6 * rows), sharex=True, sharey=True, squeeze=False)
+    for ax, (key, g) in zip(axes.flat, groups):
+        for _, r in g.sort_values("seed").iterrows():
+            x = np.asarray(r["traj_base_x"], dtype=float)
+            t = step_times(r, len(x)) - float(r["eval_start"])
+            after = t >= -1e-9
+            if not after.any():
+                continue
+            progress = x[after] - x[after][0]
+            ax.plot(t[after], progress, lw=0.9)
+            end = _phase_end(r)
+            if end is not None:
+                i = min(int(np.searchsorted(t[after], end)), len(progress) - 1)
+                fell = r.get("fall_time") is not None and not pd.isna(r.get("fall_time"))
+                ax.plot(t[after][i], progress[i], marker="x" if fell else "+", color="black", ms=7)
+        ax.set_title(str(key), fontsize=8)
+    for ax in axes.flat[len(groups):]:
+        ax.axis("off")
+    for column in range(cols):  # the lowest panel of each column carries the time axis
+        lowest = axes[(len(groups) - 1 - column) // cols, column]
+        lowest.xaxis.set_tick_params(labelbottom=True)
+        lowest.set_xlabel("s after the takeover", fontsize=8)
+    for ax in axes[:, 0]:
+        ax.set_ylabel("forward progress (m)", fontsize=8)
+    first = have.iloc[0]
+    fig.suptitle(f"Progress after the takeover, every trial (+ a stop begins: under {first['walk_min_speed']:.2f} m/s "
+                 f"over {first['walk_window_s']:g} s; x a fall)", fontsize=9)
+    return save_figure(fig, path, dpi=110)
+
+
 def diagnostics_section(trials: pd.DataFrame, out: Path, name: str, label: str) -> tuple[list[str], list[Path]]:
     """Markdown lines and figures for the LLM trials' diagnostics (empty when no trial recorded them)."""
     if trials.empty or "repeat_fraction" not in trials or trials["repeat_fraction"].isna().all():
@@ -264,6 +322,12 @@ def diagnostics_section(trials: pd.DataFrame, out: Path, name: str, label: str) 
              "nearest demonstration action and from the seed policy's action for the same state (the oracle, "
              "computed alongside, never shown to the model).", "", to_markdown(diagnostics_table(llm, label)), ""]
     figures = []
+    progress = progress_figure(trials, label, out / "figures" / f"{name}_progress.png")
+    if progress is not None:
+        figures.append(progress)
+        lines += ["Where each trial stops or falls: its forward progress after the takeover (the trials that stored "
+                  "their base trajectory), against the pace the walking test asks for:", "",
+                  f"![progress after the takeover](figures/{progress.name})", ""]
     models = llm[~llm["model"].isin(REFERENCE_KINDS)]
     for key, group in models.groupby(label, sort=False):
         best = group.sort_values(["nwt", "seed"], ascending=[False, True]).iloc[0]

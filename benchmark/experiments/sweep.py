@@ -51,14 +51,16 @@ class TrialError(RuntimeError):
 
 
 class _Trajectory(TrialHooks):
-    """Joint positions and targets of every control step, stored with the trial."""
+    """Joint positions and targets and the base's forward position (world x, the progress the walking test reads) of
+    every control step, stored with the trial."""
 
     def start(self, seed, sim, policy, episode):
-        self.joint_pos, self.joint_target = [], []
+        self.joint_pos, self.joint_target, self.base_x = [], [], []
 
         def keep(loop) -> None:
             self.joint_pos.append([round(float(v), 4) for v in loop.state.joint_pos])
             self.joint_target.append([round(float(v), 4) for v in loop.targets])
+            self.base_x.append(round(float(loop.state.base_pos[0]), 4))
 
         return keep
 
@@ -87,7 +89,7 @@ class _Worker:
                 "seed_policy_sha256": seed_policy, "traj_joint_pos": trajectory.joint_pos,
                 "load_1m": os.getloadavg()[0],  # the machine's load as the trial ended: measured latencies need it
                 "trial_wall_s": time.perf_counter() - started,
-                "traj_joint_target": trajectory.joint_target, "worker": f"{socket.gethostname()}:{os.getpid()}"}
+                "traj_joint_target": trajectory.joint_target, "traj_base_x": trajectory.base_x, "worker": f"{socket.gethostname()}:{os.getpid()}"}
 
     def close(self) -> None:
         self.resources.close()

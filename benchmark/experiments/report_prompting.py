@@ -280,7 +280,7 @@ def progress_figure(trials: pd.DataFrame, label: str, path: Path) -> Path | None
     groups = list(have.groupby(label, sort=False))
     cols = min(3, len(groups))
     rows = -(-len(groups) // cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(3.4 * cols, 2.6 * rows), sharex=True, sharey=True, squeeze=False)
+    fig, axes = plt.subplots(rows, cols, figsize=(max(3.4 * cols, 6.0), 2.6 * rows + 0.4), sharex=True, sharey=True, squeeze=False)
     for ax, (key, g) in zip(axes.flat, groups):
         for _, r in g.sort_values("seed").iterrows():
             x = np.asarray(r["traj_base_x"], dtype=float)
@@ -295,7 +295,9 @@ def progress_figure(trials: pd.DataFrame, label: str, path: Path) -> Path | None
                 i = min(int(np.searchsorted(t[after], end)), len(progress) - 1)
                 fell = r.get("fall_time") is not None and not pd.isna(r.get("fall_time"))
                 ax.plot(t[after][i], progress[i], marker="x" if fell else "+", color="black", ms=7)
-        ax.set_title(str(key), fontsize=8)
+        total = int((trials[label] == key).sum())
+        ax.set_title(f"{key} ({len(g)} trials)" if len(g) == total else f"{key} ({len(g)} of {total} trials: those "
+                     "that stored it)", fontsize=8)
     for ax in axes.flat[len(groups):]:
         ax.axis("off")
     for column in range(cols):  # the lowest panel of each column carries the time axis
@@ -305,7 +307,7 @@ def progress_figure(trials: pd.DataFrame, label: str, path: Path) -> Path | None
     for ax in axes[:, 0]:
         ax.set_ylabel("forward progress (m)", fontsize=8)
     first = have.iloc[0]
-    fig.suptitle(f"Progress after the takeover, every trial (+ a stop begins: under {first['walk_min_speed']:.2f} m/s "
+    fig.suptitle(f"Progress after the takeover, every trial\n(+ a stop begins: under {first['walk_min_speed']:.2f} m/s "
                  f"over {first['walk_window_s']:g} s; x a fall)", fontsize=9)
     return save_figure(fig, path, dpi=110)
 
@@ -326,7 +328,7 @@ def diagnostics_section(trials: pd.DataFrame, out: Path, name: str, label: str) 
     if progress is not None:
         figures.append(progress)
         lines += ["Where each trial stops or falls: its forward progress after the takeover (the trials that stored "
-                  "their base trajectory), against the pace the walking test asks for:", "",
+                  "their base trajectory), a mark where a stop began or a fall came:", "",
                   f"![progress after the takeover](figures/{progress.name})", ""]
     models = llm[~llm["model"].isin(REFERENCE_KINDS)]
     for key, group in models.groupby(label, sort=False):

@@ -15,6 +15,11 @@ def test_auto_resolves_per_model_and_rows_record_the_mode_that_ran():
     assert LLMSettings().history_mode == "shifted" and LLMSettings().approximate
     assert LLMSettings(model="openai:gpt-4o").history_mode == "sliding"
     assert LLMSettings(model="knn").history_mode == "sliding"
+    # a window-less prompt has no window to shift: it is read exactly; a windowed retrieval prompt still shifts
+    assert LLMSettings(prompt_strategy="nearest-only").history_mode == "sliding"
+    assert not LLMSettings(model="qwen2.5-coder-0.5b", prompt_strategy="nearest-only").approximate
+    assert LLMSettings(prompt_strategy="nearest").history_mode == "shifted"
+    assert LLMSettings(prompt_strategy="nearest-only", history_mode="shifted").history_mode == "shifted"
     cell = make_cell({"policy": "llm"})
     assert cell.params()["history_mode"] == "shifted"
     with pytest.raises(SettingError, match="history_mode 'shifted' needs the embedded model"):

@@ -210,8 +210,10 @@ def study_section(trials: pd.DataFrame, probes: pd.DataFrame, planned: pd.DataFr
             "prompt's trivial answers (paired 95% interval). Closed loop: normalized walking time, success with its "
             "Wilson interval, distance walked in the 10 s evaluated, seconds per query (2 threads) and the fraction "
             "of replies that repeat the previous action or copy an example line verbatim. Embedded models run "
-            "`shifted` history (llama.cpp's KV-cache reuse, an approximation); a row marked exact history reads "
-            "the same prompts without it, on the same seeds, and measures the approximation's effect.", "", "<!-- study table -->", "", to_markdown(table), "",
+            "`shifted` history (llama.cpp's KV-cache reuse, an approximation) on prompts with a chronological window "
+            "and read window-less prompts (`nearest-only`) exactly, unless a row's cell says otherwise; a row marked "
+            "exact history is the exact twin of a shifted row of the same model and prompt, on the same seeds, and "
+            "measures the approximation's effect.", "", "<!-- study table -->", "", to_markdown(table), "",
             "<!-- end of study table -->", ""]
 
 

@@ -68,8 +68,10 @@ class LLMSettings:
                                         "every query); block: exact, grows then cuts 10 pairs at once (prefix cache "
                                         "stays valid between cuts); shifted: sliding window with llama.cpp KV-cache "
                                         "shifting, APPROXIMATE (cached keys/values keep the dropped pair in "
-                                        "context), embedded models only; auto: shifted for embedded models, "
-                                        "sliding for the others", choices=HISTORY_MODES)
+                                        "context), embedded models only; auto: shifted for embedded models on a "
+                                        "prompt with a chronological window, sliding for the others (a window-less "
+                                        "prompt such as nearest-only has no window to shift)",
+                                choices=HISTORY_MODES)
     prompt_strategy: str = setting(DEFAULT_STRATEGY, "which examples the prompt shows above the current input: "
                                    + "; ".join(f"{s.name}: {s.help}" for s in STRATEGIES.values()),
                                    choices=tuple(STRATEGIES), flag="--prompt-strategy", noun="prompt strategy",
@@ -118,7 +120,8 @@ class LLMSettings:
 
     def __post_init__(self) -> None:
         if self.history_mode == "auto":  # resolved here, so every row records the mode that ran
-            mode = "shifted" if is_embedded(self.model) else "sliding"
+            strategy = STRATEGIES.get(self.prompt_strategy)  # an unknown name is validate()'s to report
+            mode = "shifted" if is_embedded(self.model) and (strategy is None or strategy.window) else "sliding"
             object.__setattr__(self, "history_mode", mode)
 
     @property

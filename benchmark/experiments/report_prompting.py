@@ -282,7 +282,8 @@ def progress_figure(trials: pd.DataFrame, label: str, path: Path) -> Path | None
     groups = list(have.groupby(label, sort=False))
     cols = min(3, len(groups))
     rows = -(-len(groups) // cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(max(3.4 * cols, 6.0), 2.6 * rows + 0.4), sharex=True, sharey=True, squeeze=False)
+    fig, axes = plt.subplots(rows, cols, figsize=(max(3.4 * cols, 6.0), 2.6 * rows + 0.4), sharex=True, sharey=True,
+                             squeeze=False)
     for ax, (key, g) in zip(axes.flat, groups):
         for _, r in g.sort_values("seed").iterrows():
             x = np.asarray(r["traj_base_x"], dtype=float)

@@ -97,6 +97,21 @@ def test_hold_on_a_nearest_last_prompt_equals_knn(walk):
     assert rows["hold"].distance_m == rows["knn"].distance_m
 
 
+def test_nearest_by_time_shows_the_same_examples_in_the_order_they_happened(walk):
+    """The K nearest of nearest-only, oldest first: knn answers the same, copying the last line no longer does."""
+    pool = [(np.full(33, v), np.full(12, v)) for v in (0.5, 0.1, 0.3, 0.2)]
+    prompt = build_prompt("", [], np.zeros(33), PromptConfig(history=0, strategy="nearest-by-time", k=3), tuple(pool))
+    outputs = [line for line in prompt.splitlines() if line.startswith("Output: ")]
+    assert outputs == ["Output: " + ENC.encode(pool[i][1]) for i in (1, 2, 3)]  # pool order, not nearest last
+    near, by_time = (ProbeRun(llm=LLMSettings(history=10, prompt_strategy=strategy))
+                     for strategy in ("nearest-only", "nearest-by-time"))
+    knn_near, knn_time = answer_items(walk, near, model=_knn()), answer_items(walk, by_time, model=_knn())
+    np.testing.assert_array_equal(knn_near.errors, knn_time.errors)
+    hold_time = answer_items(walk, by_time, model=HoldModel())
+    assert not np.array_equal(hold_time.errors, knn_time.errors)
+    np.testing.assert_array_equal(hold_time.prompt_knn_errors, knn_time.errors)  # the same-prompt knn is the nearest
+
+
 def _knn():
     from benchmark.llm.reference import KnnModel
 

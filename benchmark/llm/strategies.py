@@ -12,6 +12,9 @@ memory and the current observation.
                    retrieved pairs and the query (~K x 220 Gemma tokens at O5); the window stays cached.
     nearest-only   only the K nearest pairs, nearest last: a short prompt. Re-reads per query: everything
                    after the description (K pairs).
+    nearest-by-time  only the K nearest pairs, in the order they happened: the nearest is anywhere among
+                   them, so copying the last line is no longer `knn` and the model must find the nearest
+                   example itself (its gain over `hold` measures that). Re-reads as nearest-only.
     sorted         the window's own pairs ordered farthest to nearest the current input (nearest last).
                    Re-reads per query: the whole window (no prefix survives a re-order).
     cycle          the window, then its last full gait cycle laid out so that the example just above the
@@ -42,12 +45,13 @@ Pair = tuple[np.ndarray, np.ndarray]  # (LLM observation, normalized action)
 
 HISTORY_HEADER = "Recent inputs and the outputs that kept the robot walking:"
 NEAREST_HEADER = "Examples whose inputs are nearest the current input (nearest last):"
+BY_TIME_HEADER = "Examples whose inputs are nearest the current input, in the order they happened:"
 SORTED_HEADER = "Inputs and the outputs that kept the robot walking, ordered by closeness to the current input " \
                 "(nearest last):"
 CYCLE_HEADER = "The last gait cycle ({period} steps), aligned: the example just above the current input is one " \
                "period before it:"
 
-EXAMPLE_HEADERS = (HISTORY_HEADER, NEAREST_HEADER, SORTED_HEADER, CYCLE_HEADER.partition("(")[0])
+EXAMPLE_HEADERS = (HISTORY_HEADER, NEAREST_HEADER, BY_TIME_HEADER, SORTED_HEADER, CYCLE_HEADER.partition("(")[0])
 MEMORIES = ("demonstrations", "window", "both")
 DISTANCES = ("l2", "l1")
 DEFAULT_STRATEGY = "chronological"
@@ -69,6 +73,9 @@ STRATEGIES: dict[str, Strategy] = {s.name: s for s in (
                         "(re-reads K pairs)", window=True, retrieves=True),
     Strategy("nearest-only", "only the K nearest pairs from the memory, nearest last (a short prompt; re-reads "
                              "all but the description)", window=False, retrieves=True),
+    Strategy("nearest-by-time", "only the K nearest pairs from the memory, in the order they happened (copying "
+                                "the last line is not knn; re-reads all but the description)",
+             window=False, retrieves=True),
     Strategy("sorted", "the window's pairs ordered farthest to nearest the current input (re-reads the window)",
              window=True, retrieves=False),
     Strategy("cycle", "the window, then its last gait cycle aligned so the line above the query is one period ago "
@@ -95,12 +102,18 @@ def distances(pool: Sequence[Pair], obs: np.ndarray, enc: Encoding, idx: np.ndar
     return np.abs(gap).sum(axis=1) if distance == "l1" else (gap * gap).sum(axis=1)
 
 
+def nearest_indices(pool: Sequence[Pair], obs: np.ndarray, enc: Encoding, idx: np.ndarray, distance: str,
+                    k: int | None = None) -> list[int]:
+    """Indices of the k pool pairs nearest `obs` (all when k is None), farthest first; ties: the older is nearer."""
+    order = np.argsort(distances(pool, obs, enc, idx, distance), kind="stable")
+    chosen = order if k is None else order[:k]
+    return [int(i) for i in chosen[::-1]]
+
+
 def nearest_last(pool: Sequence[Pair], obs: np.ndarray, enc: Encoding, idx: np.ndarray, distance: str,
                  k: int | None = None) -> list[Pair]:
     """The k pairs nearest `obs` (all when k is None), ordered farthest to nearest; ties: the older is nearer."""
-    order = np.argsort(distances(pool, obs, enc, idx, distance), kind="stable")
-    chosen = order if k is None else order[:k]
-    return [pool[i] for i in chosen[::-1]]
+    return [pool[i] for i in nearest_indices(pool, obs, enc, idx, distance, k)]
 
 
 def gait_period(actions: np.ndarray) -> int | None:
@@ -136,9 +149,12 @@ def render_history(strategy: str, window: Sequence[Pair], demonstrations: Sequen
     if STRATEGIES[strategy].window and window:
         lines += [HISTORY_HEADER, *pairs(window)]
     if STRATEGIES[strategy].retrieves:
-        chosen = nearest_last(retrieval_pool(window, demonstrations, memory), obs, enc, idx, distance, k)
+        pool = retrieval_pool(window, demonstrations, memory)  # oldest first
+        chosen = nearest_indices(pool, obs, enc, idx, distance, k)
+        by_time = strategy == "nearest-by-time"
         if chosen:
-            lines += [NEAREST_HEADER, *pairs(chosen)]
+            lines += [BY_TIME_HEADER if by_time else NEAREST_HEADER,
+                      *pairs([pool[i] for i in (sorted(chosen) if by_time else chosen)])]
     elif strategy == "cycle":
         actions = np.array([enc.quantize(a) for _, a in window]) if window else np.zeros((0, 0))
         period = gait_period(actions)

@@ -234,6 +234,20 @@ grid = { model = ["hold", "knn"], prompt_strategy = ["chronological", "nearest-o
     assert "| 1/1 [" in hold_row or "| 0/1 [" in hold_row
 
 
+def test_a_probe_job_keeps_its_grid_place_and_the_mode_it_reads_with_under_only():
+    """`--only` picks runs, not their place: a run's index (the report's row order) is its place in the whole grid;
+    a growing window reads exactly, so the job (and its stored row) says sliding whatever `auto` resolves to."""
+    from benchmark.evaluate.study import probe_jobs
+    from benchmark.experiments.experiment import load_experiment
+
+    experiment = load_experiment("prompting")
+    every = probe_jobs(experiment, "digest")
+    picked = probe_jobs(experiment, "digest", only={"model": "qwen2.5-coder-0.5b"})
+    assert [j.index for j in picked] == [j.index for j in every if j.llm.model == "qwen2.5-coder-0.5b"]
+    assert [j.id for j in picked] == [j.id for j in every if j.llm.model == "qwen2.5-coder-0.5b"]
+    assert picked[0].index > 0 and {j.llm.history_mode for j in every} == {"sliding"}
+
+
 def test_the_study_table_joins_probe_and_closed_loop_and_says_what_is_missing():
     """One row per model and prompt: the probe's skill and gain, the closed loop with its Wilson interval, the
     exact-history variant as its own row, planned rows 'not run yet', probe-only strategies as such."""

@@ -331,3 +331,13 @@ def test_committed_stores_keep_their_trial_ids_under_todays_settings(name):
     stored = load_results(Path(__file__).parents[1] / "reports" / "data" / (name if name == "prompting" else f"{name}.parquet"))
     closed_loop = stored[stored["kind"] != "probe"] if "kind" in stored else stored
     assert len(closed_loop) and closed_loop["trial_id"].isin(ids).all()
+    if "kind" in stored:  # the probe stage's rows too, each keyed by the history mode its probe read with
+        from benchmark.evaluate.probe import load_probe_set
+        from benchmark.evaluate.study import probe_jobs
+
+        experiment = load_experiment(name)
+        probes = stored[stored["kind"] == "probe"]
+        jobs = {j.id: j for j in probe_jobs(experiment, load_probe_set(experiment.probe_set).digest)}
+        assert len(probes) and probes["trial_id"].isin(jobs).all()
+        assert all(jobs[i].llm.history_mode == mode == "sliding" for i, mode in zip(probes["trial_id"],
+                                                                                   probes["history_mode"]))

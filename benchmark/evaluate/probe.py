@@ -278,10 +278,15 @@ def _prompts(probe: ProbeSet, run: ProbeRun):
             yield walk, k, history, demonstrations, walk.observations[k], walk.actions[k]
 
 
+def probe_history_mode(llm: LLMSettings, window: str) -> str:
+    """The history mode a probe run reads with: a sliding window of an approximate mode shifts the KV cache as closed
+    loop does; every other read (a growing window above all) is exact."""
+    return "shifted" if window == "slide" and llm.approximate else "sliding"
+
+
 def probe_model(run: ProbeRun, runtime: Runtime = Runtime()):
-    """The model a probe run queries; a sliding window of an approximate mode shifts the KV cache as closed loop does."""
-    approximate = run.window == "slide" and run.llm.approximate
-    return _new_model(dataclasses.replace(run.llm, history_mode="shifted" if approximate else "sliding"), runtime)
+    """The model a probe run queries, reading with `probe_history_mode`."""
+    return _new_model(dataclasses.replace(run.llm, history_mode=probe_history_mode(run.llm, run.window)), runtime)
 
 
 def answer_items(probe: ProbeSet, run: ProbeRun, runtime: Runtime = Runtime(), model=None,

@@ -30,6 +30,7 @@ from benchmark.evaluate.probe import (
     ProbeRun,
     answer_walks,
     load_probe_set,
+    probe_history_mode,
     summarize_answers,
 )
 from benchmark.experiments.experiment import Experiment, ExperimentError
@@ -68,15 +69,16 @@ def probe_jobs(experiment: Experiment, probe_digest: str, overrides: dict | None
     if not table:
         return []
     fields = {f.name for f in dataclasses.fields(LLMSettings)}
-    jobs = []
-    for index, (settings, labels) in enumerate(experiment.probe_settings(overrides, only)):
+    jobs, every = [], experiment.probe_settings(overrides)
+    for settings, labels in experiment.probe_settings(overrides, only):
+        index = every.index((settings, labels))  # the place in the whole grid, whatever `only` kept
         try:
             llm = build(LLMSettings, {k: v for k, v in settings.items() if k in fields}, f"{experiment.name} probe")
         except ValueError as err:
             raise ExperimentError(f"{experiment.name}: probe: {err}") from None
-        cells = tuple(table["cells"]) if table.get("cells") else None
-        jobs.append(ProbeJob(experiment.name, llm, labels, table.get("window", "grow"), cells, table.get("items"),
-                             probe_digest, index))
+        cells, window = tuple(table["cells"]) if table.get("cells") else None, table.get("window", "grow")
+        llm = dataclasses.replace(llm, history_mode=probe_history_mode(llm, window))  # the row keeps the mode that ran
+        jobs.append(ProbeJob(experiment.name, llm, labels, window, cells, table.get("items"), probe_digest, index))
     return jobs
 
 

@@ -88,7 +88,7 @@ def probe_figure(rows: pd.DataFrame, path: Path) -> Path:
     ax.axhline(0.0, color="grey", lw=0.8, ls=":")
     ax.set_xticks(range(len(strategies)), [name.replace(" (", "\n(") for name in strategies], fontsize=8)
     ax.set_ylabel("probe skill (1 - error / hold's error)")
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.2), ncols=4)  # below: bars and marks stay clear
     ax.set_title("Probe skill by prompt strategy, against what each prompt gives away", fontsize=10)
     return save_figure(fig, path, dpi=120)
 

@@ -296,8 +296,8 @@ def progress_figure(trials: pd.DataFrame, label: str, path: Path) -> Path | None
             end = _phase_end(r)
             if end is not None:
                 i = min(int(np.searchsorted(t[after], end)), len(progress) - 1)
-                fell = r.get("fall_time") is not None and not pd.isna(r.get("fall_time"))
-                ax.plot(t[after][i], progress[i], marker="x" if fell else "+", color="black", ms=7)
+                fell_first = pd.notna(r.get("fall_time")) and float(r["fall_time"]) - float(r["eval_start"]) <= end
+                ax.plot(t[after][i], progress[i], marker="x" if fell_first else "+", color="black", ms=7)
         total = int((trials[label] == key).sum())
         ax.set_title(f"{key} ({len(g)} trials)" if len(g) == total else f"{key} ({len(g)} of {total} trials: those "
                      "that stored it)", fontsize=8)

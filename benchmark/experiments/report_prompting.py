@@ -282,7 +282,7 @@ def progress_figure(trials: pd.DataFrame, label: str, path: Path) -> Path | None
     groups = list(have.groupby(label, sort=False))
     cols = min(3, len(groups))
     rows = -(-len(groups) // cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(max(3.4 * cols, 6.0), 2.6 * rows + 0.4), sharex=True, sharey=True,
+    fig, axes = plt.subplots(rows, cols, figsize=(max(3.4 * cols, 6.0), 2.8 * rows + 0.5), sharex=True, sharey=True,
                              squeeze=False)
     for ax, (key, g) in zip(axes.flat, groups):
         for _, r in g.sort_values("seed").iterrows():
@@ -299,7 +299,7 @@ def progress_figure(trials: pd.DataFrame, label: str, path: Path) -> Path | None
                 fell_first = pd.notna(r.get("fall_time")) and float(r["fall_time"]) - float(r["eval_start"]) <= end
                 ax.plot(t[after][i], progress[i], marker="x" if fell_first else "+", color="black", ms=7)
         total = int((trials[label] == key).sum())
-        ax.set_title(f"{key} ({len(g)} trials)" if len(g) == total else f"{key} ({len(g)} of {total} trials: those "
+        ax.set_title(f"{key}\n({len(g)} trials)" if len(g) == total else f"{key}\n({len(g)} of {total} trials: those "
                      "that stored it)", fontsize=8)
     for ax in axes.flat[len(groups):]:
         ax.axis("off")

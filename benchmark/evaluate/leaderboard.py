@@ -244,9 +244,10 @@ def write_leaderboard(store: Path | str = DEFAULT_STORE, out: Path | str = "repo
              "the decoded reply is compared with the seed policy's action written in the encoding. Skill = 1 - "
              "error / error of `hold` (the newest action in the prompt): hold 0, oracle 1, below 0 worse than "
              "freezing. It measures imitation, not control. **Closed loop** is the paper's protocol (full tier): "
-             "NWT and success over the LLM's 10 s; on embedded models its 50-pair history is `shifted` (llama.cpp's "
-             "KV-cache shifting), an **approximation** whose effect is measured in docs/models.md, and each trial "
-             "records it (`approximate_history`). Intervals are 95% (probe: bootstrap over items; success: Wilson).",
+             "NWT and success over the LLM's 10 s; on embedded models a prompt's 50-pair chronological window is "
+             "`shifted` (llama.cpp's KV-cache shifting), an **approximation** whose effect is measured in docs/models.md, "
+             "while a window-less prompt (`nearest-only`) is read exactly; each trial records which "
+             "(`approximate_history`). Intervals are 95% (probe: bootstrap over items; success: Wilson).",
              ""]
     shown = best_rows(rows)
     table = headline(shown)

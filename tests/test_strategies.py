@@ -250,7 +250,7 @@ def test_a_probe_job_keeps_its_grid_place_and_the_mode_it_reads_with_under_only(
 
 def test_the_study_table_joins_probe_and_closed_loop_and_says_what_is_missing():
     """One row per model and prompt: the probe's skill and gain, the closed loop with its Wilson interval, the
-    exact-history variant as its own row, planned rows 'not run yet', probe-only strategies as such."""
+    exact-history variant as its own row, planned rows 'not run yet' (or partial), probe-only strategies as such."""
     import pandas as pd
 
     from benchmark.experiments.report_prompting import study_table
@@ -270,13 +270,19 @@ def test_the_study_table_joins_probe_and_closed_loop_and_says_what_is_missing():
     probes = pd.DataFrame([{"model": "qwen2.5-coder-0.5b", "strategy": near, **probe},
                            {"model": "qwen2.5-coder-0.5b", "strategy": "cycle", **probe}])
     planned = pd.DataFrame([{"policy": "llm", "model": "embedded", "prompt_strategy": "chronological",
-                             "history_mode": "shifted"}])
+                             "history_mode": "shifted", "trials": 10},
+                            {"policy": "llm", "model": "qwen2.5-coder-0.5b", "prompt_strategy": "nearest-only",
+                             "history_mode": "shifted", "trials": 2},
+                            {"policy": "llm", "model": "qwen2.5-coder-0.5b", "prompt_strategy": "nearest-only",
+                             "history_mode": "sliding", "trials": 10}])
     table = study_table(trials, probes, planned).set_index(["model", "prompt"])
     shifted = table.loc[("Qwen2.5-Coder 0.5B", near)]
     assert shifted["success [95%]"].startswith("1/2 [0.09,") and shifted["closed loop: NWT"] == "0.75"
+    assert "partial" not in shifted["success [95%]"]  # all its planned trials are stored
     assert shifted["gain over the prompt's trivial answer [95%]"] == "-0.100 [-0.200, +0.000]"
     exact = table.loc[("Qwen2.5-Coder 0.5B", near + " (exact history)")]
     assert exact["success [95%]"].startswith("1/1") and exact["probe skill [95%]"] == "-"
+    assert exact["success [95%]"].endswith("(partial: 1 of 10 trials)")
     assert table.loc[("Qwen2.5-Coder 0.5B", "cycle"), "closed loop: NWT"] == "probe only"
     assert table.loc[("Gemma 3 270M", "chronological"), "closed loop: NWT"] == "not run yet"
     hold = table.loc[("hold (the prompt's last example line)", near)]

@@ -16,6 +16,7 @@ from __future__ import annotations
 import hashlib
 import json
 import re
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -421,15 +422,17 @@ def expected_probe_runs(name: str) -> int | None:
 
 
 def planned_llm_cells(name: str) -> pd.DataFrame | None:
-    """The shipped experiment's LLM cells (model, prompt_strategy, history_mode), one row each (None: no such
-    experiment), so a partial store's tables show what is still to run."""
+    """The shipped experiment's LLM cells (model, prompt_strategy, history_mode) and their planned trial counts
+    (`trials`), one row each (None: no such experiment), so a partial store's tables show what is still to run."""
     try:
         experiment = load_experiment(name)
     except ExperimentError:
         return None
-    cells = {t.cell: t.cell.params() for t in experiment.trials()}
-    rows = [{k: p.get(k) for k in ("policy", "model", "prompt_strategy", "retrieve_k", "memory",
-                                                "distance", "history_mode")} for p in cells.values()]
+    trials = experiment.trials()
+    counts = Counter(t.cell for t in trials)
+    cells = {t.cell: t.cell.params() for t in trials}
+    rows = [{**{k: p.get(k) for k in ("policy", "model", "prompt_strategy", "retrieve_k", "memory",
+                                      "distance", "history_mode")}, "trials": counts[cell]} for cell, p in cells.items()]
     return pd.DataFrame([r for r in rows if r["policy"] == "llm"])
 
 

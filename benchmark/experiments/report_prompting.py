@@ -143,12 +143,14 @@ def study_table(trials: pd.DataFrame, probes: pd.DataFrame, planned: pd.DataFram
     """One row per (model, prompt strategy) in either stage: its probe skill and gain over the prompt's better
     trivial answer, and its closed loop; the trivial answers' probe skill is read off any probe row of their
     strategy (they do not depend on the model). `planned`: the experiment's LLM cells (model, prompt_strategy,
-    history_mode), so rows not run yet show as such. The seed policy last."""
+    history_mode, trials), so rows not run yet, or not all their trials, show as such. The seed policy last."""
     llm = trials[trials["policy"] == "llm"] if "policy" in trials else trials.iloc[0:0]
     cells = pd.concat([llm, planned if planned is not None else llm.iloc[0:0]], ignore_index=True)
     labels = _prompt_labels(cells) if not cells.empty else pd.Series(dtype=object)
     llm = llm.assign(prompt_label=labels.iloc[:len(llm)].to_numpy())  # labelled beside the planned cells, as the keys
     cell_keys = set(zip(cells.get("model", []), labels))
+    planned_trials = {} if planned is None or "trials" not in planned else dict(  # (model, label) -> trials planned
+        zip(zip(cells["model"].iloc[len(llm):], labels.iloc[len(llm):]), planned["trials"]))
     keys = list(dict.fromkeys([*zip(probes.get("model", []), probes.get("strategy", [])),
                                *zip(cells.get("model", []), labels)]))
     keys.sort(key=lambda k: (k[0] in TRIVIAL, list(MODEL_NAMES).index(k[0]) if k[0] in MODEL_NAMES else 99, k[1]))
@@ -170,7 +172,7 @@ def study_table(trials: pd.DataFrame, probes: pd.DataFrame, planned: pd.DataFram
             row["gain over the prompt's trivial answer [95%]"] = _interval(r["gain"], r["gain_low"], r["gain_high"],
                                                                            signed=True)
         row.update(_closed_loop(llm[(llm["model"] == model) & (llm["prompt_label"] == label)],
-                                in_study=(model, label) in cell_keys))
+                                in_study=(model, label) in cell_keys, planned=planned_trials.get((model, label))))
         out.append(row)
     if "policy" in trials:
         rl = trials[trials["policy"] == "rl"]
@@ -180,8 +182,9 @@ def study_table(trials: pd.DataFrame, probes: pd.DataFrame, planned: pd.DataFram
     return pd.DataFrame(out)
 
 
-def _closed_loop(g: pd.DataFrame, in_study: bool = True) -> dict:
-    """A row's closed-loop columns (`in_study`: the experiment's closed loop holds the row, run or not)."""
+def _closed_loop(g: pd.DataFrame, in_study: bool = True, planned: int | None = None) -> dict:
+    """A row's closed-loop columns (`in_study`: the experiment's closed loop holds the row, run or not; `planned`:
+    its trial count, to mark a row with fewer trials stored as partial)."""
     if g.empty:
         return {"closed loop: NWT": "not run yet" if in_study else "probe only", "success [95%]": "-", "distance (m)": "-", "s / query": "-",
                 "replies repeating / copying": "-"}
@@ -190,7 +193,8 @@ def _closed_loop(g: pd.DataFrame, in_study: bool = True) -> dict:
     model = g["policy"].eq("llm").all() and g["model"].iloc[0] not in TRIVIAL
     repeat = g["repeat_fraction"].dropna() if "repeat_fraction" in g else pd.Series(dtype=float)
     copy = g["copy_fraction"].dropna() if "copy_fraction" in g else pd.Series(dtype=float)
-    return {"closed loop: NWT": f"{g['nwt'].mean():.2f}", "success [95%]": f"{wins}/{n} [{low:.2f}, {high:.2f}]",
+    partial = f" (partial: {n} of {planned} trials)" if planned and n < planned else ""
+    return {"closed loop: NWT": f"{g['nwt'].mean():.2f}", "success [95%]": f"{wins}/{n} [{low:.2f}, {high:.2f}]{partial}",
             "distance (m)": f"{g['distance_m'].mean():.1f}",
             "s / query": f"{g['latency_mean_s'].mean():.1f}" if model and "latency_mean_s" in g else "-",
             "replies repeating / copying": f"{repeat.mean():.2f} / {copy.mean():.2f}" if len(repeat) else "-"}

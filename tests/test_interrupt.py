@@ -18,6 +18,12 @@ SLOW = Path(__file__).parent / "data" / "slow_sweep.toml"
 BENCH = [sys.executable, "-m", "benchmark.cli"]
 
 
+def _interruptible() -> None:
+    """In the child: Ctrl-C at its default. A shell runs a background job (`pytest &` in a script) with SIGINT
+    ignored, and the child would inherit that, as a terminal's background job rightly does."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _start(results: Path) -> tuple[subprocess.Popen, list[psutil.Process]]:
     proc = subprocess.Popen([*BENCH, "sweep", str(SLOW), "--workers", "2", "--results", str(results)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True)
@@ -149,7 +155,8 @@ def test_ctrl_c_on_bench_eval_mid_probe_exits_130_in_a_line(tmp_path, after_s, l
     llama.cpp loads the model left a server no one held, whose destructor waited for ever: it now waits for the load
     (seconds) and ends the same way."""
     proc = subprocess.Popen([*BENCH, "eval", "--llm", "embedded", "--store", str(tmp_path / "board"), "--threads",
-                             "1", "--no-cache"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                             "1", "--no-cache"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=_interruptible)
     first = proc.stderr.readline()  # printed just before the model loads and the first walk is asked
     assert first.startswith("bench: probe"), first
     time.sleep(after_s)  # 0.3 s: llama.cpp is loading; 8 s: a query in flight (seconds; the loop's rest microseconds)

@@ -428,11 +428,9 @@ def planned_llm_cells(name: str) -> pd.DataFrame | None:
         experiment = load_experiment(name)
     except ExperimentError:
         return None
-    trials = experiment.trials()
-    counts = Counter(t.cell for t in trials)
-    cells = {t.cell: t.cell.params() for t in trials}
-    rows = [{**{k: p.get(k) for k in ("policy", "model", "prompt_strategy", "retrieve_k", "memory",
-                                      "distance", "history_mode")}, "trials": counts[cell]} for cell, p in cells.items()]
+    counts = Counter(t.cell for t in experiment.trials())  # each cell once, in grid order, with its trial count
+    rows = [{**{k: cell.params().get(k) for k in ("policy", "model", "prompt_strategy", "retrieve_k", "memory",
+                                                  "distance", "history_mode")}, "trials": n} for cell, n in counts.items()]
     return pd.DataFrame([r for r in rows if r["policy"] == "llm"])
 
 

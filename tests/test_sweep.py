@@ -18,6 +18,7 @@ import pytest
 from benchmark.experiments.experiment import ExperimentError, available_experiments, load_experiment
 from benchmark.experiments.report import bar_figure, paper_table, repeated_targets, summary_table, write_reports
 from benchmark.common.store import ResultStore, load_results
+from benchmark.common.tables import live_latency_mean
 from benchmark.experiments.sweep import run_sweep
 
 TINY = Path(__file__).parent / "data" / "tiny_sweep.toml"
@@ -239,6 +240,20 @@ def test_reference_rows_cover_the_llm_phase_from_the_same_state_and_tables_show_
     assert len(table) == 4 and all(" [" in line and "±" in line for line in table), table
     repeated = summary_table(frame).set_index("controller")["repeated targets"]
     assert repeated["hold"] == 1.0 and np.isnan(repeated["seed_policy"])  # frozen by design; not an LLM row
+
+
+def test_latency_is_the_mean_over_live_queries_and_cached_replies_carry_none():
+    trials = pd.DataFrame({"latency_mean_s": [2.0, 14.0, 0.0], "queries": [100, 100, 50], "cache_hits": [0, 98, 50]})
+    assert live_latency_mean(trials) == pytest.approx((100 * 2.0 + 2 * 14.0) / 102)  # not (2 + 14 + 0) / 3
+    assert np.isnan(live_latency_mean(trials.iloc[2:]))  # every reply from the cache: nothing measured
+    # The committed description ablation: its E5 cell came wholly from the cache, E1's trials were partly resumed.
+    frame = load_results(Path(__file__).parents[1] / "reports" / "data" / "description.parquet")
+    latency = summary_table(frame, spread=False).set_index(["controller", "description"])["latency (s)"]
+    assert np.isnan(latency["embedded", "E5"])
+    e1 = frame[(frame["controller"] == "embedded") & (frame["description"] == "E1")]
+    live = e1["queries"] - e1["cache_hits"]
+    assert latency["embedded", "E1"] == round(float((e1["latency_mean_s"] * live).sum() / live.sum()), 2)
+    assert latency["embedded", "E1"] < e1["latency_mean_s"].mean()  # its 5-query resumed trials read cold
 
 
 def test_the_papers_figures_stand_beside_the_stores_in_table_and_figure(tmp_path):

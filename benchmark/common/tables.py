@@ -1,4 +1,5 @@
-"""Small helpers every report uses: a pandas table as Markdown, and the Wilson interval of a rate."""
+"""Small helpers every report uses: a pandas table as Markdown, the Wilson interval of a rate, and the mean
+seconds a query over trials that answered part of their queries from the reply cache."""
 
 from __future__ import annotations
 
@@ -14,6 +15,21 @@ def wilson(successes: int, n: int, z: float = 1.96) -> tuple[float, float]:
     centre = (p + z * z / (2 * n)) / (1 + z * z / n)
     half = z * np.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
     return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def live_latency_mean(trials: pd.DataFrame) -> float:
+    """Seconds a query over the trials' live (not cached) queries: each trial's `latency_mean_s` covers its live
+    queries only, so it is weighted by their count (a trial replayed from the cache adds nothing). NaN where no
+    query was live or no trial measured latency."""
+    if "latency_mean_s" not in trials:
+        return float("nan")
+    latency = trials["latency_mean_s"].astype(float)
+    if "queries" in trials:
+        cached = trials["cache_hits"].fillna(0) if "cache_hits" in trials else 0
+        live = (trials["queries"] - cached).astype(float).where(latency.notna(), 0.0).fillna(0.0)
+    else:
+        live = latency.notna().astype(float)
+    return float((latency.fillna(0.0) * live).sum() / live.sum()) if live.sum() > 0 else float("nan")
 
 
 def to_markdown(table: pd.DataFrame) -> str:

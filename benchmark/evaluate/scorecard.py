@@ -28,7 +28,7 @@ import numpy as np
 from benchmark.common.fingerprint import fingerprint_id, platform_fingerprint
 from benchmark.common.settings import SettingError
 from benchmark.common.store import ResultStore
-from benchmark.common.tables import wilson
+from benchmark.common.tables import live_latency_mean, wilson
 from benchmark.evaluate.probe import (
     DEFAULT_PROBE,
     ItemAnswers,
@@ -159,12 +159,11 @@ def summarize_closed_loop(frame) -> dict:
     for (robot, terrain), g in frame.groupby(["robot", "terrain"], sort=False):
         n, nwt = len(g), g["nwt"].to_numpy(float)
         half = 2.776 * nwt.std(ddof=1) / np.sqrt(n) if n > 1 else float("nan")  # t(0.975, 4) for 5 trials
-        wins = int(g["success"].sum())
+        wins, latency = int(g["success"].sum()), live_latency_mean(g)
         out[f"{robot}/{terrain}"] = {"trials": n, "nwt": float(nwt.mean()), "nwt_half_ci": float(half),
                                      "success": wins / n, "success_ci": wilson(wins, n),
                                      "distance_m": float(g["distance_m"].mean()),
-                                     "latency_mean_s": float(g["latency_mean_s"].mean()) if "latency_mean_s" in g
-                                     else None}
+                                     "latency_mean_s": None if np.isnan(latency) else latency}
     return out
 
 

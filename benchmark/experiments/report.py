@@ -25,7 +25,7 @@ import pandas as pd
 
 from benchmark.common.figures import save_figure
 from benchmark.common.fingerprint import describe
-from benchmark.common.tables import to_markdown, wilson
+from benchmark.common.tables import live_latency_mean, to_markdown, wilson
 from benchmark.experiments.experiment import ExperimentError, axes_of, load_experiment
 from benchmark.experiments.report_latency import latency_section, realtime_section
 from benchmark.experiments.report_prompting import (diagnostics_section, probe_section, split_probe_rows, step_times,
@@ -109,6 +109,9 @@ def summary_table(frame: pd.DataFrame, spread: bool = True) -> pd.DataFrame:
     present = {k: v for k, v in METRICS.items() if k in frame and frame[k].notna().any()}
     grouped = _with_axis_text(frame, axes).groupby(axes, sort=False)
     table = grouped.agg(trials=("trial_id", "count"), **{k: (k, AGGREGATIONS[agg]) for k, (_, agg, _) in present.items()})
+    if "latency_mean_s" in present:  # weighted by each trial's live queries (cached replies carry no latency)
+        weights = [c for c in ("latency_mean_s", "queries", "cache_hits") if c in frame]
+        table["latency_mean_s"] = grouped[weights].apply(live_latency_mean)
     for key, (_, _, digits) in present.items():
         table[key] = table[key].round(digits)
     if spread:

@@ -63,6 +63,8 @@ ADAPT: dict[str, tuple[list[str], dict[str, str]] | str] = {
     "bench sweep normalization --dry-run": ([], {}),
     "bench run --llm qwen2.5-coder-0.5b --prompt-strategy nearest-only --trials 1":
         (["--duration", "10.5"], {"qwen2.5-coder-0.5b": "knn"}),  # the ladder's model is an optional extra
+    "bench run --llm qwen2.5-coder-1.5b --prompt-strategy nearest-only --trials 1":
+        "the 0.5B line above with a larger optional model (1.2 GB, 15 min a trial); the study ran it 10 times",
     "bench probe --llm knn --prompt-strategy nearest --cells a1/flat": (["--items", "2"], {}),
     "bench run": "the main job (500 queries of the embedded model); its path runs shortened as "
                  "'bench run --duration 2.5 --llm-after 2 --trials 1'",

@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 
 from benchmark.common.figures import save_figure
-from benchmark.common.tables import to_markdown, wilson
+from benchmark.common.tables import live_latency_mean, to_markdown, wilson
 from benchmark.llm.controller import strategy_text
 from benchmark.llm.reference import REFERENCE_KINDS, TRIVIAL_ANSWERS
 
@@ -182,6 +182,10 @@ def study_table(trials: pd.DataFrame, probes: pd.DataFrame, planned: pd.DataFram
     return pd.DataFrame(out)
 
 
+def _seconds(value: float) -> str:
+    return "-" if np.isnan(value) else f"{value:.1f}"
+
+
 def _closed_loop(g: pd.DataFrame, in_study: bool = True, planned: int | None = None) -> dict:
     """A row's closed-loop columns (`in_study`: the experiment's closed loop holds the row, run or not; `planned`:
     its trial count, to mark a row with fewer trials stored as partial)."""
@@ -196,7 +200,7 @@ def _closed_loop(g: pd.DataFrame, in_study: bool = True, planned: int | None = N
     partial = f" (partial: {n} of {planned} trials)" if planned and n < planned else ""
     return {"closed loop: NWT": f"{g['nwt'].mean():.2f}", "success [95%]": f"{wins}/{n} [{low:.2f}, {high:.2f}]{partial}",
             "distance (m)": f"{g['distance_m'].mean():.1f}",
-            "s / query": f"{g['latency_mean_s'].mean():.1f}" if model and "latency_mean_s" in g else "-",
+            "s / query": _seconds(live_latency_mean(g)) if model else "-",
             "replies repeating / copying": f"{repeat.mean():.2f} / {copy.mean():.2f}" if len(repeat) else "-"}
 
 

@@ -49,9 +49,10 @@ METRICS = {  # column in the store -> (heading, aggregation, digits)
     "gpt4_output_tokens": ("GPT-4 output tokens", "mean", 0),
     "parse_failures": ("parse failures", "sum", 0),
     "queries": ("queries", "sum", 0),
-    "latency_mean_s": ("latency (s)", "mean", 2),
+    "latency_mean_s": ("latency (s)", "live", 2),
 }
 AGGREGATIONS = {"mean": "mean", "sum": lambda x: x.sum(min_count=1)}  # a sum over no values is "-", not 0
+# "live": seconds a query weighted by each trial's live queries (cached replies carry no latency)
 LEG = "FL"  # the leg the trajectory figure shows, as in the paper
 
 
@@ -108,8 +109,9 @@ def summary_table(frame: pd.DataFrame, spread: bool = True) -> pd.DataFrame:
     axes = axes_of(frame)
     present = {k: v for k, v in METRICS.items() if k in frame and frame[k].notna().any()}
     grouped = _with_axis_text(frame, axes).groupby(axes, sort=False)
-    table = grouped.agg(trials=("trial_id", "count"), **{k: (k, AGGREGATIONS[agg]) for k, (_, agg, _) in present.items()})
-    if "latency_mean_s" in present:  # weighted by each trial's live queries (cached replies carry no latency)
+    table = grouped.agg(trials=("trial_id", "count"),
+                        **{k: (k, AGGREGATIONS[agg]) for k, (_, agg, _) in present.items() if agg != "live"})
+    if "latency_mean_s" in present:
         weights = [c for c in ("latency_mean_s", "queries", "cache_hits") if c in frame]
         table["latency_mean_s"] = grouped[weights].apply(live_latency_mean)
     for key, (_, _, digits) in present.items():

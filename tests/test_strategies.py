@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from benchmark.evaluate.probe import ProbeRun, ProbeSetConfig, _prompts, answer_items, make_probe_set
@@ -220,6 +221,7 @@ grid = { model = ["hold", "knn"], prompt_strategy = ["chronological", "nearest-o
     assert "## Probe stage" in text and "## Closed-loop diagnostics" in text and "gain over the better" in text
     assert (tmp_path / "reports" / "figures" / "tiny_prompting_probe.png").is_file()
     assert "cached replies" in text  # reply-cache hits are counted beside the probe's s/query
+    assert "| replies from the cache |" in text.split("## Closed-loop diagnostics")[1]
     # each trial stores the base's forward position per control step: the progress its walking test read
     for _, trial in frame[frame["kind"] != "probe"].iterrows():
         x = np.asarray(trial["traj_base_x"], dtype=float)
@@ -301,3 +303,15 @@ def test_bench_latency_measures_each_prompt_strategy():
     bad = subprocess.run([sys.executable, "-m", "benchmark.cli", "latency", "--strategies", "closest"],
                          capture_output=True, text=True, cwd=ROOT, timeout=60)
     assert bad.returncode == 2 and "closest" in bad.stderr and "Traceback" not in bad.stderr
+
+
+def test_the_diagnostics_table_counts_replies_read_back_from_the_cache():
+    """A resumed trial's cached replies are counted per row (its s / query covers the live ones only); a row whose
+    trials did not count them says so with "-"."""
+    from benchmark.experiments.report_prompting import diagnostics_table
+
+    trials = pd.DataFrame({"controller": ["a", "a", "b"], "success": [1.0, 1.0, 0.0], "nwt": [1.0, 1.0, 0.1],
+                           "queries": [100, 100, 100], "cache_hits": [98, 0, None], "repeat_fraction": [0.0, 0.0, 1.0]})
+    table = diagnostics_table(trials, "controller").set_index("controller")
+    assert table.loc["a", "replies from the cache"] == "98/200" and table.loc["b", "replies from the cache"] == "0/100"
+    assert diagnostics_table(trials.drop(columns="cache_hits"), "controller")["replies from the cache"].eq("-").all()

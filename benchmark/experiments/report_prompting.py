@@ -225,6 +225,14 @@ def study_section(trials: pd.DataFrame, probes: pd.DataFrame, planned: pd.DataFr
             "<!-- end of study table -->", ""]
 
 
+def _cached_share(g: pd.DataFrame) -> str:
+    """Cached replies over all queries of a row's trials ("-" when the trials did not count them): a prompt seen
+    before (a resumed trial, a robot standing still) reads its reply back, so s / query covers only the live ones."""
+    if "cache_hits" not in g or "queries" not in g or g["queries"].fillna(0).sum() == 0:
+        return "-"
+    return f"{int(g['cache_hits'].fillna(0).sum())}/{int(g['queries'].fillna(0).sum())}"
+
+
 def _phase_end(r) -> float | None:
     """s after the takeover at which the robot first fell or stopped walking (None: it walked to the end)."""
     ends = [t for t in (r.get("fall_time"), r.get("stop_time")) if t is not None and not pd.isna(t)]
@@ -245,6 +253,7 @@ def diagnostics_table(trials: pd.DataFrame, label: str) -> pd.DataFrame:
         for name in DIAGNOSTICS:
             values = g[name].dropna().astype(float) if name in g else pd.Series(dtype=float)
             row[name.replace("_mean", "").replace("_", " ")] = round(float(values.mean()), 3) if len(values) else "-"
+        row["replies from the cache"] = _cached_share(g)
         out.append(row)
     return pd.DataFrame(out)
 
@@ -333,7 +342,10 @@ def diagnostics_section(trials: pd.DataFrame, out: Path, name: str, label: str) 
              "fraction of replies that repeat the action before them (freezing) or copy an example line of their "
              "prompt verbatim, and the mean absolute distance (action units, as written) of each reply from the "
              "nearest demonstration action and from the seed policy's action for the same state (the oracle, "
-             "computed alongside, never shown to the model).", "", to_markdown(diagnostics_table(llm, label)), ""]
+             "computed alongside, never shown to the model). Replies from the cache counts the replies read back from the "
+             "on-disk reply cache: a prompt seen before (a resumed or rerun trial, or a robot standing still so that "
+             "its prompt repeats) gets the same greedy reply without a model call, and s / query covers the live "
+             "replies only.", "", to_markdown(diagnostics_table(llm, label)), ""]
     figures = []
     progress = progress_figure(trials, label, out / "figures" / f"{name}_progress.png")
     if progress is not None:

@@ -342,10 +342,10 @@ def diagnostics_section(trials: pd.DataFrame, out: Path, name: str, label: str) 
              "fraction of replies that repeat the action before them (freezing) or copy an example line of their "
              "prompt verbatim, and the mean absolute distance (action units, as written) of each reply from the "
              "nearest demonstration action and from the seed policy's action for the same state (the oracle, "
-             "computed alongside, never shown to the model). Replies from the cache counts the replies read back from the "
-             "on-disk reply cache: a prompt seen before (a resumed or rerun trial, or a robot standing still so that "
-             "its prompt repeats) gets the same greedy reply without a model call, and s / query covers the live "
-             "replies only.", "", to_markdown(diagnostics_table(llm, label)), ""]
+             "computed alongside, never shown to the model). Replies from the cache counts the replies read "
+             "back from the on-disk reply cache: a prompt seen before (a resumed or rerun trial, or a robot standing "
+             "still so that its prompt repeats) gets the same greedy reply without a model call, and s / query "
+             "covers the live replies only.", "", to_markdown(diagnostics_table(llm, label)), ""]
     figures = []
     progress = progress_figure(trials, label, out / "figures" / f"{name}_progress.png")
     if progress is not None:

@@ -221,7 +221,9 @@ grid = { model = ["hold", "knn"], prompt_strategy = ["chronological", "nearest-o
     assert "## Probe stage" in text and "## Closed-loop diagnostics" in text and "gain over the better" in text
     assert (tmp_path / "reports" / "figures" / "tiny_prompting_probe.png").is_file()
     assert "cached replies" in text  # reply-cache hits are counted beside the probe's s/query
-    assert "| replies from the cache |" in text.split("## Closed-loop diagnostics")[1]
+    diagnostics = text.split("## Closed-loop diagnostics")[1]
+    assert "| replies from the cache |" in diagnostics
+    assert "| revisits (2-10 back) |" in diagnostics  # computed from the replies each trial stored
     # each trial stores the base's forward position per control step: the progress its walking test read
     for _, trial in frame[frame["kind"] != "probe"].iterrows():
         x = np.asarray(trial["traj_base_x"], dtype=float)
@@ -315,3 +317,22 @@ def test_the_diagnostics_table_counts_replies_read_back_from_the_cache():
     table = diagnostics_table(trials, "controller").set_index("controller")
     assert table.loc["a", "replies from the cache"] == "98/200" and table.loc["b", "replies from the cache"] == "0/100"
     assert diagnostics_table(trials.drop(columns="cache_hits"), "controller")["replies from the cache"].eq("-").all()
+
+
+def test_revisits_tell_a_model_looping_its_own_lines_from_one_that_freezes_or_writes_new_actions():
+    """A reply that returns to one of the model's own replies 2-10 queries back (not the last one) is a revisit: a
+    3-line loop revisits nearly always, a frozen reply and a stream of new actions never do."""
+    from benchmark.experiments.report_prompting import diagnostics_table, revisit_fraction
+
+    a, b, c = [0.1] * 12, [0.2] * 12, [0.3] * 12
+    assert revisit_fraction([a, b, c] * 10) == pytest.approx(27 / 30)  # every reply from the fourth on
+    assert revisit_fraction([a] * 30) == 0.0  # freezing is a repeat, not a revisit
+    assert revisit_fraction([[0.01 * i] * 12 for i in range(30)]) == 0.0
+    far = [[0.01 * i] * 12 for i in range(11)]
+    assert revisit_fraction(far + [far[0]]) == 0.0  # 11 back is beyond the window
+    assert revisit_fraction(None) is None and revisit_fraction([]) is None
+    trials = pd.DataFrame({"controller": ["loop", "loop", "freeze"], "success": [0.0] * 3, "nwt": [0.0] * 3,
+                           "repeat_fraction": [0.0, 0.0, 1.0], "diag_llm_actions": [[a, b] * 5, [a, b, c] * 10, [a] * 9]})
+    table = diagnostics_table(trials, "controller").set_index("controller")
+    assert table.loc["loop", "revisits (2-10 back)"] == pytest.approx(round((0.8 + 0.9) / 2, 3))
+    assert table.loc["freeze", "revisits (2-10 back)"] == 0.0

@@ -20,6 +20,7 @@ MODEL_NAMES = {"embedded": "Gemma 3 270M", "qwen2.5-coder-0.5b": "Qwen2.5-Coder 
                "qwen2.5-coder-1.5b": "Qwen2.5-Coder 1.5B", "hold": "hold (the prompt's last example line)",
                "knn": "knn (the prompt's nearest example)"}
 TRIVIAL = {name: f"same_prompt_{name}_skill" for name in TRIVIAL_ANSWERS}  # a trivial answer's probe column
+REVISIT_BACK = 10  # how far back (queries) a reply's return to one of the model's own replies counts as a loop
 SHOWN_JOINTS = (3, 4, 5, 1)  # FL hip, thigh, calf; FR thigh (canonical order)
 JOINT_NAMES = ("FR hip", "FR thigh", "FR calf", "FL hip", "FL thigh", "FL calf",
                "RR hip", "RR thigh", "RR calf", "RL hip", "RL thigh", "RL calf")
@@ -233,6 +234,18 @@ def _cached_share(g: pd.DataFrame) -> str:
     return f"{int(g['cache_hits'].fillna(0).sum())}/{int(g['queries'].fillna(0).sum())}"
 
 
+def revisit_fraction(actions, back: int = REVISIT_BACK) -> float | None:
+    """The fraction of a trial's replies that return verbatim to one of the model's own replies 2 to `back` queries
+    earlier without repeating the one just before: a model that loops a few of its own lines scores high, one that
+    freezes (repeats) or writes new actions scores low. None when the trial stored no replies."""
+    if not isinstance(actions, (list, tuple, np.ndarray)) or len(actions) == 0:
+        return None
+    replies = [tuple(np.round(np.asarray(a, dtype=float), 4)) for a in actions]
+    revisits = sum(1 for i in range(2, len(replies)) if replies[i] != replies[i - 1]
+                   and replies[i] in replies[max(0, i - back):i - 1])
+    return revisits / len(replies)
+
+
 def _phase_end(r) -> float | None:
     """s after the takeover at which the robot first fell or stopped walking (None: it walked to the end)."""
     ends = [t for t in (r.get("fall_time"), r.get("stop_time")) if t is not None and not pd.isna(t)]
@@ -253,6 +266,8 @@ def diagnostics_table(trials: pd.DataFrame, label: str) -> pd.DataFrame:
         for name in DIAGNOSTICS:
             values = g[name].dropna().astype(float) if name in g else pd.Series(dtype=float)
             row[name.replace("_mean", "").replace("_", " ")] = round(float(values.mean()), 3) if len(values) else "-"
+        loops = [v for v in map(revisit_fraction, g.get("diag_llm_actions", [])) if v is not None]
+        row[f"revisits (2-{REVISIT_BACK} back)"] = round(float(np.mean(loops)), 3) if loops else "-"
         row["replies from the cache"] = _cached_share(g)
         out.append(row)
     return pd.DataFrame(out)
@@ -342,7 +357,11 @@ def diagnostics_section(trials: pd.DataFrame, out: Path, name: str, label: str) 
              "fraction of replies that repeat the action before them (freezing) or copy an example line of their "
              "prompt verbatim, and the mean absolute distance (action units, as written) of each reply from the "
              "nearest demonstration action and from the seed policy's action for the same state (the oracle, "
-             "computed alongside, never shown to the model). Replies from the cache counts the replies read "
+             "computed alongside, never shown to the model). Revisits counts the replies that return verbatim to one of "
+             f"the model's own replies 2 to {REVISIT_BACK} queries before without repeating the last one: a model "
+             "looping a few of its own lines (which a chronological history then shows it as examples) rather than "
+             "freezing on one; a gait that copies the same demonstration lines every cycle revisits too, and the "
+             "progress figure tells the two apart. Replies from the cache counts the replies read "
              "back from the on-disk reply cache: a prompt seen before (a resumed or rerun trial, or a robot standing "
              "still so that its prompt repeats) gets the same greedy reply without a model call, and s / query "
              "covers the live replies only.", "", to_markdown(diagnostics_table(llm, label)), ""]

@@ -332,7 +332,8 @@ def test_revisits_tell_a_model_looping_its_own_lines_from_one_that_freezes_or_wr
     assert revisit_fraction(far + [far[0]]) == 0.0  # 11 back is beyond the window
     assert revisit_fraction(None) is None and revisit_fraction([]) is None
     trials = pd.DataFrame({"controller": ["loop", "loop", "freeze"], "success": [0.0] * 3, "nwt": [0.0] * 3,
-                           "repeat_fraction": [0.0, 0.0, 1.0], "diag_llm_actions": [[a, b] * 5, [a, b, c] * 10, [a] * 9]})
+                           "repeat_fraction": [0.0, 0.0, 1.0],
+                           "diag_llm_actions": [[a, b] * 5, [a, b, c] * 10, [a] * 9]})
     table = diagnostics_table(trials, "controller").set_index("controller")
     assert table.loc["loop", "revisits (2-10 back)"] == pytest.approx(round((0.8 + 0.9) / 2, 3))
     assert table.loc["freeze", "revisits (2-10 back)"] == 0.0

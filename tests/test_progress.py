@@ -121,3 +121,15 @@ def test_probe_progress_eta_is_the_runs_mean_rate_and_counts_from_a_resumed_item
     lines = capsys.readouterr().err.splitlines()
     assert lines[0] == "bench: probe: 10/30 items, ETA 3.3 min" and lines[2] == "bench: probe: 30/30 items"
     assert lines[3] == "bench: probe: 20/30 items, ETA 1.7 min"
+
+
+def test_policies_that_share_a_loaded_model_share_its_reading_rate(capsys):
+    """A sweep builds a policy per trial over one loaded model: the second trial's cold read gives an estimate."""
+    robot, model = load_robot("a1"), SleepyModel(cold_s=0.0, warm_s=0.0)
+    first, second = (LLMPolicy(robot, LLMSettings(model="hold"), model=model) for _ in range(2))
+    assert first.reading is second.reading
+    first.reading.learn("x" * 3000, prompt_tokens=3000, new_tokens=3000, seconds=10.0)
+    with second.reading.reading("Input: [1]\n" * 400, cold=True):
+        pass
+    assert "at the 300 tok/s read before" in capsys.readouterr().err
+    assert LLMPolicy(robot, LLMSettings(model="hold"), model=SleepyModel(0.0, 0.0)).reading is not first.reading

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import sys
 from dataclasses import dataclass, field, replace
+from weakref import WeakKeyDictionary
+
 import numpy as np
 
 from benchmark.trial.cell import CellSpec
@@ -177,6 +179,18 @@ class _Trial:
     warmup_s: float | None = None  # realtime, measured latency: the untimed read before the clock starts
 
 
+_READINGS: WeakKeyDictionary = WeakKeyDictionary()
+
+
+def _reading_for(model: LanguageModel) -> PromptReading:
+    """One `PromptReading` per loaded model: the trials of a sweep that share a model share the reading rate it
+    learnt and the last prompt it read, so the second trial's cold read comes with an estimate."""
+    try:
+        return _READINGS.setdefault(model, PromptReading())
+    except TypeError:  # a model that cannot be weakly referenced or hashed: a reading of its own
+        return PromptReading()
+
+
 class LLMPolicy:
     name = "llm"
 
@@ -191,7 +205,7 @@ class LLMPolicy:
         self.constraint = reply_constraint(self.encoding, robot.num_joints, settings.constrained)
         self.seed_action = np.zeros(robot.num_joints)  # what the seed policy would do now (for recordings)
         self.last_prompt = ""
-        self.reading = PromptReading()  # lines on stderr while a long prompt is read
+        self.reading = _reading_for(self.model)  # lines on stderr while a long prompt is read
         self._trial = _Trial()
 
     @classmethod

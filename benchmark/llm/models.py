@@ -368,13 +368,15 @@ class OpenAIModel:
                      retries=raw.retries_taken)
 
     def _respect_rate_limit(self) -> None:
-        """Space requests at least `min_interval_s` apart, over every thread using this model."""
-        with self._lock:
-            now = time.monotonic()
-            wait_s = max(0.0, self._next_request_at - now)
-            self._next_request_at = max(now, self._next_request_at) + self.min_interval_s
-        if wait_s:
-            time.sleep(wait_s)
+        """Space requests at least `min_interval_s` apart, over every thread using this model. The spacing
+        counts from when each request actually leaves, so a late wake-up never lets the next one follow it sooner."""
+        if not self.min_interval_s:
+            return
+        with self._lock:  # held while waiting: the other threads would wait for their turn anyway
+            wait_s = self._next_request_at - time.monotonic()
+            if wait_s > 0:
+                time.sleep(wait_s)
+            self._next_request_at = time.monotonic() + self.min_interval_s
 
     def close(self) -> None:
         self._client.close()

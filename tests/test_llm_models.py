@@ -267,7 +267,12 @@ def test_a_late_wake_up_does_not_let_the_next_request_follow_sooner(monkeypatch)
     finally:
         server.close()
     real_sleep, sleeps, sent = time.sleep, [], []
-    monkeypatch.setattr(models.time, "sleep", lambda s: (sleeps.append(s), real_sleep(s + 0.05 * (len(sleeps) == 1))))
+
+    def oversleep_once(seconds: float) -> None:
+        sleeps.append(seconds)
+        real_sleep(seconds + (0.05 if len(sleeps) == 1 else 0.0))
+
+    monkeypatch.setattr(models.time, "sleep", oversleep_once)
     for _ in range(3):
         limited._respect_rate_limit()
         sent.append(time.monotonic())

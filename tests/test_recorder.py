@@ -6,6 +6,8 @@ import subprocess
 import sys
 from collections import defaultdict
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -92,38 +94,81 @@ def test_cli_records_one_file_per_trial(tmp_path):
     assert len(_column(read_back(tmp_path / names[1])["/joints/torque"], "Scalars:scalars")) == 10
 
 
-def test_the_readme_recording_recipe_writes_one_file_and_serves_it_on_loopback(tmp_path):
-    """`bench run --record walk.rrd && bench view walk.rrd` as the README says, then the web viewer."""
+def listening_addresses(port: int) -> set[str]:
+    """The addresses a TCP socket listens on at `port`, read from the kernel's tables (/proc/net/tcp, tcp6)."""
+    import ipaddress
+
+    found = set()
+    for table, width in (("/proc/net/tcp", 8), ("/proc/net/tcp6", 32)):
+        try:
+            lines = Path(table).read_text().splitlines()[1:]
+        except OSError:
+            continue
+        for line in lines:
+            local, state = line.split()[1], line.split()[3]
+            address, _, hex_port = local.partition(":")
+            if state == "0A" and int(hex_port, 16) == port:  # 0A: LISTEN
+                raw = bytes.fromhex(address)
+                raw = b"".join(raw[i:i + 4][::-1] for i in range(0, len(raw), 4))  # host-order words
+                found.add(str(ipaddress.ip_address(raw)) if len(address) == width else address)
+    return found
+
+
+def _free_port() -> int:
     import socket
-    import time
-    import urllib.request
 
-    from rerun.chunk import RrdReader
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
 
-    path = tmp_path / "walk.rrd"
+
+@pytest.fixture(scope="module")
+def walk_rrd(tmp_path_factory) -> Path:
+    """`bench run --record walk.rrd` as the README says: two trials in one file."""
+    path = tmp_path_factory.mktemp("walk") / "walk.rrd"
     out = subprocess.run([sys.executable, "-m", "benchmark.cli", "run", "--policy", "rl", "--trials", "2",
                           "--duration", "1", "--record", str(path)], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
-    ids = [e.recording_id for e in RrdReader(path).recordings()]
+    return path
+
+
+def test_the_readme_recording_recipe_writes_one_file(walk_rrd):
+    from rerun.chunk import RrdReader
+
+    ids = [e.recording_id for e in RrdReader(walk_rrd).recordings()]
     assert ids == ["mujoco-a1-flat-rl-seed0", "mujoco-a1-flat-rl-seed1"]
-    assert not list(tmp_path.glob("walk-seed*.rrd"))
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    view = subprocess.Popen([sys.executable, "-m", "benchmark.cli", "view", str(path), "--web", "--port", str(port)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert not list(walk_rrd.parent.glob("walk-seed*.rrd"))
+
+
+@pytest.mark.parametrize("bind, expected", [(None, "127.0.0.1"), ("127.0.0.2", "127.0.0.2")])
+def test_the_web_viewer_listens_on_loopback_unless_told_otherwise(walk_rrd, bind, expected):
+    """Both of Rerun's ports (the page and its data) listen only where `--bind` says, 127.0.0.1 by default."""
+    import time
+    import urllib.request
+
+    port = _free_port()
+    extra = ["--bind", bind] if bind else []
+    view = subprocess.Popen([sys.executable, "-m", "benchmark.cli", "view", str(walk_rrd), "--web", "--port", str(port),
+                             *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         page, deadline = "", time.monotonic() + 60
         while time.monotonic() < deadline and "<html" not in page:
             try:
-                page = urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=2).read().decode()
+                page = urllib.request.urlopen(f"http://{expected}:{port}/", timeout=2).read().decode()
             except OSError:
                 time.sleep(0.5)
         assert "<html" in page and "Rerun" in page
+        assert listening_addresses(port) == {expected} and listening_addresses(port + 1) == {expected}
     finally:
         view.terminate()
         _, err = view.communicate(timeout=30)
-    assert f"http://localhost:{port}/" in err
+    assert f"http://localhost:{port}/" in err and f"on {expected}" in err
     time.sleep(1)
     leftovers = subprocess.run(["pgrep", "-f", f"web-viewer-port {port}"], capture_output=True, text=True).stdout
     assert leftovers == "", "the viewer outlived bench view"
+
+
+def test_a_bind_address_that_is_not_one_is_one_line(walk_rrd):
+    out = subprocess.run([sys.executable, "-m", "benchmark.cli", "view", str(walk_rrd), "--web", "--bind", "everywhere"],
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2 and out.stderr.count("\n") == 1 and "not an IP address" in out.stderr, out.stderr

@@ -356,3 +356,18 @@ def test_committed_stores_keep_their_trial_ids_under_todays_settings(name):
         assert len(probes) and probes["trial_id"].isin(jobs).all()
         assert all(jobs[i].llm.history_mode == mode == "sliding" for i, mode in zip(probes["trial_id"],
                                                                                    probes["history_mode"]))
+
+
+def test_an_experiment_naming_an_unassembled_model_lists_dry_runs_and_asks_for_it_only_to_run(tmp_path):
+    """`PROMPTWALK_MODELS` is an empty folder: the ladder's optional models are absent, as on a fresh machine."""
+    env = {**os.environ, "PROMPTWALK_MODELS": str(tmp_path / "models")}
+    listed = subprocess.run([*BENCH, "sweep", "--list"], capture_output=True, text=True, timeout=120, env=env)
+    assert listed.returncode == 0 and "prompting" in listed.stdout, listed.stderr
+    dry = subprocess.run([*BENCH, "sweep", "prompting", "--dry-run", "--results", "reports/data/prompting"],
+                         capture_output=True, text=True, timeout=120, env=env, cwd=Path(__file__).parents[1])
+    assert dry.returncode == 0 and "0 missing" in dry.stdout, dry.stderr
+    run = subprocess.run([*BENCH, "sweep", "prompting", "--only", "controller=qwen15_nearest_only", "--seeds", "1",
+                          "--results", str(tmp_path / "store")], capture_output=True, text=True, timeout=120, env=env)
+    assert run.returncode == 2 and run.stderr.count("\n") == 1, run.stderr
+    assert "bench models --assemble qwen2.5-coder-1.5b" in run.stderr
+    assert not (tmp_path / "store" / "rows").exists() or not any((tmp_path / "store" / "rows").iterdir())

@@ -54,7 +54,10 @@ def build_parser() -> argparse.ArgumentParser:
                           description="Launches the Rerun viewer (the `rerun` command of rerun-sdk) on the file.")
     view.add_argument("path", help="an .rrd file written by bench run --record")
     view.add_argument("--web", action="store_true", help="serve Rerun's web viewer instead (machines without a display)")
-    view.add_argument("--port", type=int, default=9090, help="web viewer port (default 9090)")
+    view.add_argument("--port", type=int, default=9090, help="web viewer port (default 9090; its data port is PORT+1)")
+    view.add_argument("--bind", default="127.0.0.1", metavar="ADDR",
+                      help="address the web viewer listens on (default 127.0.0.1: this machine only; reach it from "
+                           "another with ssh -L, or name an address such as 0.0.0.0 to serve the network)")
 
     train = sub.add_parser("train", help="train a seed policy with stable-baselines3 PPO (CPU, minutes)",
                            description=_doc("benchmark.training.train"), formatter_class=fmt)

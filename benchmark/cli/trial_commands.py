@@ -84,7 +84,8 @@ class _Record(TrialHooks):
 
         c = self.cell
         name = f"{c.sim}-{Path(c.robot).name}-{c.terrain}-{c.policy}-seed{seed}"
-        self.recorder = Recorder(self.folder / f"{name}.rrd", sim.robot, sim.terrain, sim, policy, name)
+        meta = {**c.params(), "seed": seed, "eval_start": c.eval_start}
+        self.recorder = Recorder(self.folder / f"{name}.rrd", sim.robot, sim.terrain, sim, policy, name, meta)
         return self.recorder.on_step
 
     def end(self, seed, result) -> None:
@@ -96,7 +97,10 @@ def cmd_run(args, values: dict, runtime: Runtime) -> int:
 
     from benchmark.trial.recorder import merge_recordings, rerun_command
 
+    from benchmark.llm.models import require_models
+
     cell = make_cell(values, where="bench run")
+    require_models([model] if (model := getattr(cell.settings, "model", None)) else [])  # assembled, before running
     collect = _Collect()
     hooks = [collect, _QueryBar()]
     parts = tempfile.TemporaryDirectory(prefix="promptwalk-rec-") if args.record else None
@@ -201,12 +205,21 @@ def cmd_view(args) -> int:
     except FileNotFoundError as err:
         raise CliError(str(err)) from None
     if args.web:
+        import ipaddress
+
+        try:
+            address = ipaddress.ip_address(args.bind)
+        except ValueError:
+            raise CliError(f"--bind: '{args.bind}' is not an IP address (e.g. 127.0.0.1, ::1 or 0.0.0.0)") from None
         grpc = args.port + 1
-        print(f"serving {args.path} in Rerun's web viewer: open http://localhost:{args.port}/?url=rerun%2Bhttp"
-              f"%3A%2F%2Flocalhost%3A{grpc}%2Fproxy (forward ports {args.port} and {grpc}; Ctrl-C stops)",
+        host = "localhost" if address.is_loopback or address.is_unspecified else \
+            (f"[{args.bind}]" if address.version == 6 else args.bind)
+        reach = ("this machine only: forward ports " if address.is_loopback else "every host that can reach it: ports ")
+        print(f"serving {args.path} in Rerun's web viewer on {args.bind} ({reach}{args.port} and {grpc}); open "
+              f"http://{host}:{args.port}/?url=rerun%2Bhttp%3A%2F%2F{host}%3A{grpc}%2Fproxy (Ctrl-C stops)",
               file=sys.stderr, flush=True)
-        return _run_child([viewer, "--serve-web", "--web-viewer-port", str(args.port), "--port", str(grpc),
-                           args.path])
+        return _run_child([viewer, "--serve-web", "--bind", args.bind, "--web-viewer-port", str(args.port),
+                           "--port", str(grpc), args.path])
     return _run_child([viewer, args.path])
 
 

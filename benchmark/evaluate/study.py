@@ -36,6 +36,7 @@ from benchmark.evaluate.probe import (
 from benchmark.experiments.experiment import Experiment, ExperimentError
 from benchmark.experiments.sweep import run_metadata
 from benchmark.llm.controller import LLMSettings, strategy_label
+from benchmark.llm.models import require_models
 from benchmark.trial.resources import Runtime
 
 
@@ -88,6 +89,7 @@ def run_probe_stage(jobs: list[ProbeJob], store: ResultStore, runtime: Runtime, 
     probe = load_probe_set(probe_path)
     done = store.done_ids()
     todo = [j for j in jobs if j.id not in done]
+    require_models(j.llm.model for j in todo)  # stored rows need none
     if draft is not None:
         runtime = dataclasses.replace(runtime, draft=draft)
     meta = run_metadata(command)

@@ -131,7 +131,7 @@ class LLMSettings:
         return self.history_mode in APPROXIMATE_MODES
 
     def validate(self) -> None:
-        check_model_spec(self.model)
+        check_model_spec(self.model, require_file=False)  # assembled? asked when a trial runs it
         if self.history_mode == "shifted" and self.model.split(":")[0] == "openai":
             raise SettingError("history_mode 'shifted' needs the embedded model (llama.cpp's KV-cache shifting); "
                                "use sliding or block with a server")

@@ -446,14 +446,16 @@ def model_forms() -> list[str]:
     return [*MODEL_FORMS, *MODELS.plugins()]
 
 
-def check_model_spec(spec: str) -> None:
-    """Refuse an unknown kind, a local model file that does not exist or is not GGUF, or a ladder model
-    that is not assembled (size only; the sha256 is checked when the model loads), before anything runs."""
+def check_model_spec(spec: str, require_file: bool = True) -> None:
+    """Refuse an unknown kind, a local model file that does not exist or is not GGUF, or (with `require_file`) a
+    ladder model that is not assembled (size only; the sha256 is checked when the model loads), before anything
+    runs. Without `require_file` a ladder name is only checked to be one: an experiment that names an optional
+    model lists, validates and reports without it, and asks for it when a trial must run it."""
     from benchmark.llm import ladder
 
     if ladder.known(spec):
         model = ladder.LADDER[spec]
-        if model.extra is not None and not (model.path.is_file() and model.path.stat().st_size == model.size):
+        if require_file and model.extra is not None and not (model.path.is_file() and model.path.stat().st_size == model.size):
             ladder.resolve(spec)  # raises the line that says how to get it
         return
     kind, _, name = spec.partition(":")
@@ -466,6 +468,13 @@ def check_model_spec(spec: str) -> None:
         with open(name, "rb") as f:
             if f.read(4) != b"GGUF":
                 raise ValueError(f"'{name}' is not a GGUF model file (it does not start with the GGUF magic)")
+
+
+def require_models(specs) -> None:
+    """Every model in `specs` can run here (a ladder model is assembled): the first that cannot raises its
+    one line (how to get it). Called for the trials and probe runs that must run, not for stored ones."""
+    for spec in dict.fromkeys(specs):
+        check_model_spec(spec)
 
 
 _VERIFIED: set[tuple[str, int, float]] = set()  # ladder files whose sha256 was checked in this process

@@ -9,6 +9,7 @@ URDF; body poses come from the engine, so the recorder works the same for every 
 
 from __future__ import annotations
 
+import json
 import shutil
 import subprocess
 import sys
@@ -26,6 +27,7 @@ from robots.derive_urdf import rpy_to_matrix
 from sims.terrain import Terrain
 
 TIMELINE = "sim_time"
+META_ENTITY = "meta"  # a static JSON text: the cell a recording was made in
 AXES = ("x", "y", "z")
 ROBOT_COLOR = (200, 170, 90)
 TERRAIN_COLOR = (110, 120, 130)
@@ -94,9 +96,11 @@ def _rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
 class Recorder:
     """Collects one trial through the runner's `on_step` hook and writes it to an .rrd file."""
 
-    def __init__(self, path: Path, robot: Robot, terrain: Terrain, sim, policy=None, name: str = "") -> None:
+    def __init__(self, path: Path, robot: Robot, terrain: Terrain, sim, policy=None, name: str = "",
+                 meta: dict | None = None) -> None:
         self.path, self.robot, self.terrain, self.sim, self.policy = Path(path), robot, terrain, sim, policy
         self.name = name or self.path.stem
+        self.meta = meta or {}  # the trial's cell (engine, robot, terrain, policy, takeover): read back by `bench render`
         self.times: list[float] = []
         self.body_pos: list[np.ndarray] = []
         self.body_quat: list[np.ndarray] = []
@@ -131,6 +135,8 @@ class Recorder:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         rec.save(self.path, default_blueprint=self._blueprint(rrb))
         self._log_static(rec, rr)
+        rec.log(META_ENTITY, rr.TextDocument(json.dumps({"name": self.name, **self.meta}, default=str),
+                                             media_type="text/plain"), static=True)
         if self.times:
             self._log_series(rec, rr)
         rec.set_time(TIMELINE, duration=0.0)

@@ -20,7 +20,7 @@ from sims.terrain import Terrain
 TERRAIN_BOTTOM = 0.1  # m, thickness of the heightfield box below its lowest point
 
 
-def _build_spec(robot: Robot, terrain: Terrain, physics: PhysicsConfig) -> mujoco.MjSpec:
+def build_spec(robot: Robot, terrain: Terrain, physics: PhysicsConfig) -> mujoco.MjSpec:
     spec = mujoco.MjSpec.from_file(str(robot.urdf))
     spec.compiler.fusestatic = False  # keep the feet as bodies: contacts are reported per foot
     spec.compiler.discardvisual = True
@@ -79,7 +79,7 @@ class MujocoSim:
 
     def __init__(self, robot: Robot, terrain: Terrain, physics: PhysicsConfig = PhysicsConfig()) -> None:
         self.robot, self.terrain, self.physics = robot, terrain, physics
-        self.model = _build_spec(robot, terrain, physics).compile()
+        self.model = build_spec(robot, terrain, physics).compile()
         self.data = mujoco.MjData(self.model)
         m = self.model
         mujoco.mj_forward(m, self.data)

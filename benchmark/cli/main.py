@@ -27,6 +27,7 @@ from benchmark.llm.models import leave
 from benchmark.training.train import TrainConfig
 from benchmark.trial.cell import setting_fields
 from benchmark.trial.resources import Runtime
+from benchmark.trial.video import VideoConfig
 from robots import UnknownNameError
 
 NO_SETTINGS = {  # commands that take only their parsed arguments
@@ -47,7 +48,9 @@ def dispatch(args: argparse.Namespace) -> int:
     cell_values = {k: v for k, v in given.items() if k in cell_keys}
     match args.command:
         case "run":
-            return trial_commands.cmd_run(args, cell_values, runtime)
+            return trial_commands.cmd_run(args, cell_values, runtime, _settings(args, VideoConfig))
+        case "render":
+            return trial_commands.cmd_render(args, _settings(args, VideoConfig))
         case "prompt":
             return trial_commands.cmd_prompt(args, cell_values, runtime)
         case "perf":

@@ -28,6 +28,7 @@ from benchmark.llm.strategies import DEFAULT_STRATEGY, STRATEGIES
 from benchmark.training.train import TrainConfig
 from benchmark.trial.registry import POLICIES
 from benchmark.trial.resources import DRAFTS, Runtime
+from benchmark.trial.video import VideoConfig
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -46,6 +47,10 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--record", default=None, metavar="PATH.rrd",
                      help="write a Rerun recording: every trial in this one file, one recording per seed")
     run.add_argument("--record-dir", default=None, metavar="DIR", help="write one recording per trial into DIR")
+    run.add_argument("--video", default=None, metavar="PATH.gif|mp4",
+                     help="draw each trial into a clip (MuJoCo's renderer, headless, for every engine; one frame per "
+                          "control step, real time; several trials: PATH-seedN.gif)")
+    add_fields(run.add_argument_group("the clip (--video)"), VideoConfig)
     runtime = run.add_argument_group("how the LLM runs (not part of a result's identity)")
     add_fields(runtime, Runtime)
     runtime.add_argument("--no-cache", action="store_true", help="do not read or write the on-disk reply cache")
@@ -58,6 +63,15 @@ def build_parser() -> argparse.ArgumentParser:
     view.add_argument("--bind", default="127.0.0.1", metavar="ADDR",
                       help="address the web viewer listens on (default 127.0.0.1: this machine only; reach it from "
                            "another with ssh -L, or name an address such as 0.0.0.0 to serve the network)")
+
+    render = sub.add_parser("render", help="draw a recording's trials into GIF or MP4 clips (headless)",
+                            description=_doc("benchmark.trial.video"), formatter_class=fmt)
+    render.add_argument("path", help="an .rrd file written by bench run --record")
+    render.add_argument("--out", required=True, metavar="PATH.gif|mp4",
+                        help="the clip; a recording of several trials gives PATH-seedN.gif for each")
+    render.add_argument("--recording", default=None, metavar="ID",
+                        help="draw only this trial (its recording id, e.g. mujoco-a1-flat-llm-seed0)")
+    add_fields(render, VideoConfig)
 
     train = sub.add_parser("train", help="train a seed policy with stable-baselines3 PPO (CPU, minutes)",
                            description=_doc("benchmark.training.train"), formatter_class=fmt)

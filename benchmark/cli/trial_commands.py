@@ -12,12 +12,22 @@ from tqdm import tqdm
 
 from benchmark.cli.options import CliError
 from benchmark.common.interrupt import Interrupted, Interruption
+from benchmark.common.settings import build
 from benchmark.llm.controller import takeover_prompt
 from benchmark.llm.progress import RecentRate
 from benchmark.trial.cell import CellSpec, make_cell
 from benchmark.trial.resources import Resources, Runtime
 from benchmark.trial.runner import TrialResult, summarize
 from benchmark.trial.trials import TrialHooks, run_cell
+from benchmark.trial.video import (
+    TrackHook,
+    VideoConfig,
+    acting_label,
+    caption,
+    check_video_path,
+    clip_path,
+    render_clip,
+)
 
 
 class _Collect(TrialHooks):
@@ -92,7 +102,25 @@ class _Record(TrialHooks):
         self.written.append(self.recorder.write(result))
 
 
-def cmd_run(args, values: dict, runtime: Runtime) -> int:
+class _Video(TrialHooks):
+    """One clip per trial, drawn when the trial ends from the states of its control steps."""
+
+    def __init__(self, cell: CellSpec, path: Path, config: VideoConfig, many: bool) -> None:
+        self.cell, self.path, self.config, self.many, self.written = cell, path, config, many, []
+
+    def start(self, seed, sim, policy, episode):
+        self.track_hook, self.sim = TrackHook(), sim
+        return self.track_hook.on_step
+
+    def end(self, seed, result) -> None:
+        params = {**self.cell.params(), "seed": seed}
+        track = self.track_hook.track(eval_start=self.cell.eval_start, acting=acting_label(params),
+                                      fall_time=result.fall_time, caption=caption(params, self.sim.robot))
+        out = clip_path(self.path, seed, self.many)
+        self.written.append(render_clip(track, self.sim.robot, self.sim.terrain, out, self.config))
+
+
+def cmd_run(args, values: dict, runtime: Runtime, video: dict | None = None) -> int:
     import tempfile
 
     from benchmark.trial.recorder import merge_recordings, rerun_command
@@ -110,6 +138,11 @@ def cmd_run(args, values: dict, runtime: Runtime) -> int:
             rerun_command()  # fail before running, not after
         record = _Record(cell, Path(args.record_dir) if args.record_dir else Path(parts.name))
         hooks.append(record)
+    clips = None
+    if args.video:
+        check_video_path(Path(args.video))
+        clips = _Video(cell, Path(args.video), build(VideoConfig, video or {}, "bench run"), args.trials > 1)
+        hooks.append(clips)
     seeds = range(args.seed, args.seed + args.trials)
     trials_bar = tqdm(total=args.trials, desc=cell.label(), unit="trial", file=sys.stderr, disable=None)
     collect.on_end = lambda result: trials_bar.update()
@@ -143,6 +176,8 @@ def cmd_run(args, values: dict, runtime: Runtime) -> int:
         parts.cleanup()
         print(f"recording: {args.record} ({len(trials)} trial(s), one recording per seed); open with "
               f"'bench view {args.record}'", file=sys.stderr)
+    if clips is not None and clips.written:
+        print(f"clip{'s' if len(clips.written) > 1 else ''}: {', '.join(map(str, clips.written))}", file=sys.stderr)
     if error is not None:
         print(f"bench: error: {error} ({len(trials)} finished trial(s) reported above)", file=sys.stderr)
         return 1
@@ -193,6 +228,33 @@ def print_run_table(cell: CellSpec, result: dict) -> None:
         if any(t["cache_hits"] for t in llm_trials):
             print("cached replies come from the on-disk cache (--no-cache to query live); latency and RTF count "
                   "live queries only")
+
+
+def cmd_render(args, video: dict) -> int:
+    """Clips of a recording's trials, drawn from the states it holds."""
+    from benchmark.trial.recorder import read_tracks
+    from robots import load_robot
+    from sims.terrain import Terrain
+
+    if not Path(args.path).is_file():
+        raise CliError(f"recording '{args.path}' not found")
+    out = Path(args.out)
+    check_video_path(out)
+    config = build(VideoConfig, video, "bench render")
+    tracks = read_tracks(Path(args.path))
+    if args.recording is not None:
+        names = [t.meta.get("name") for t in tracks]
+        tracks = [t for t in tracks if t.meta.get("name") == args.recording]
+        if not tracks:
+            raise CliError(f"no recording '{args.recording}' in {args.path}; it holds: {', '.join(map(str, names))}")
+    for track in tracks:
+        meta = track.meta
+        robot = load_robot(meta["robot"])
+        terrain = Terrain(meta["terrain"], seed=int(meta.get("terrain_seed", 0)))
+        path = clip_path(out, meta.get("seed", 0), len(tracks) > 1)
+        render_clip(track, robot, terrain, path, config)
+        print(f"clip: {path} ({meta.get('name')}, {len(track.times)} control steps)", file=sys.stderr)
+    return 0
 
 
 def cmd_view(args) -> int:

@@ -22,12 +22,14 @@ import numpy as np
 
 from benchmark.trial.control import ControlLoop
 from benchmark.trial.runner import TrialResult
-from robots import CANONICAL_JOINTS, LEGS, Robot
+from benchmark.trial.video import Track, acting_label, caption
+from robots import CANONICAL_JOINTS, LEGS, Robot, load_robot
 from robots.derive_urdf import rpy_to_matrix
 from sims.terrain import Terrain
 
 TIMELINE = "sim_time"
-META_ENTITY = "meta"  # a static JSON text: the cell a recording was made in
+META_ENTITY = "meta"  # a static JSON text: the cell a recording was made in, and its outcome
+RESULT_FIELDS = ("nwt", "success", "distance_m", "fall_time", "fall_reason", "stop_time")
 AXES = ("x", "y", "z")
 ROBOT_COLOR = (200, 170, 90)
 TERRAIN_COLOR = (110, 120, 130)
@@ -135,7 +137,8 @@ class Recorder:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         rec.save(self.path, default_blueprint=self._blueprint(rrb))
         self._log_static(rec, rr)
-        rec.log(META_ENTITY, rr.TextDocument(json.dumps({"name": self.name, **self.meta}, default=str),
+        outcome = {} if result is None else {"result": {k: getattr(result, k) for k in RESULT_FIELDS}}
+        rec.log(META_ENTITY, rr.TextDocument(json.dumps({"name": self.name, **self.meta, **outcome}, default=str),
                                              media_type="text/plain"), static=True)
         if self.times:
             self._log_series(rec, rr)
@@ -241,6 +244,49 @@ class Recorder:
             rec.log(entity, rr.SeriesLines(names=list(names)), static=True)
             rec.send_columns(entity, indexes=[times],
                              columns=rr.Scalars.columns(scalars=values.ravel()).partition([values.shape[1]] * n))
+
+
+def read_tracks(path: Path) -> list[Track]:
+    """Every trial of a recording (`bench run --record`) as a `Track`: base pose and joint angles per control step,
+    the cell it ran in (`track.meta`), who acted and when, read back from the file."""
+    from rerun.chunk import RrdReader
+
+    try:
+        reader = RrdReader(path)
+        entries = reader.recordings()
+    except Exception as err:  # noqa: BLE001 - rerun raises its own errors for a file that is not an .rrd
+        raise ValueError(f"'{path}' is not a Rerun recording ({str(err).splitlines()[0] if str(err) else err})") from None
+    tracks = []
+    for entry in entries:
+        by_entity: dict[str, list] = {}
+        for chunk in reader.stream(store=entry).to_chunks():
+            by_entity.setdefault(chunk.entity_path.lstrip("/"), []).append(chunk.to_record_batch())
+        if META_ENTITY not in by_entity:
+            raise ValueError(f"'{path}' ({entry.recording_id}) was not written by bench run --record of this version: "
+                             "it names no cell to draw")
+        meta = json.loads(_values(by_entity[META_ENTITY], "TextDocument:text")[0][0])
+        robot = load_robot(meta["robot"])
+        base = by_entity.get(f"world/robot/{robot.base_link}", [])
+        times = np.array([t.total_seconds() for t in _values(base, TIMELINE)])
+        order = np.argsort(times, kind="stable")
+        joint_batches = [b for b in by_entity.get("joints/position", []) if TIMELINE in b.schema.names]
+        joint_times = np.array([t.total_seconds() for t in _values(joint_batches, TIMELINE)])
+        joints = np.array(_values(joint_batches, "Scalars:scalars"), dtype=float)[np.argsort(joint_times, kind="stable")]
+        xyzw = np.array(_values(base, "Transform3D:quaternion"), dtype=float).reshape(-1, 4)[order]
+        result = meta.get("result", {})
+        tracks.append(Track(times[order], np.array(_values(base, "Transform3D:translation"), dtype=float)
+                            .reshape(-1, 3)[order], xyzw[:, [3, 0, 1, 2]], joints.reshape(len(times), -1),
+                            eval_start=float(meta.get("eval_start", 0.0)), acting=acting_label(meta),
+                            fall_time=result.get("fall_time"), caption=caption(meta, robot), meta=meta))
+    return tracks
+
+
+def _values(batches: list, column: str) -> list:
+    out = []
+    for batch in batches:
+        if column in batch.schema.names:
+            out += batch.column(column).to_pylist()
+    return out
 
 
 def rerun_command() -> str:

@@ -31,9 +31,35 @@ def study_block(text: str) -> str:
     return "\n".join(lines[start + 1:end]).strip()
 
 
-def test_the_readme_and_docs_show_the_prompting_reports_study_table():
-    """The README's and docs' study table is the one `bench report reports/data/prompting` wrote, to the cell."""
+def test_the_docs_show_the_prompting_reports_study_table():
+    """The docs' study table is the one `bench report reports/data/prompting` wrote, to the cell."""
     report = study_block((ROOT / "reports" / "prompting.md").read_text())
     assert report.startswith("| model | prompt |")
-    for page in ("README.md", "docs/prompting.md"):
+    for page in ("docs/prompting.md",):
         assert study_block((ROOT / page).read_text()) == report, f"{page}: copy the study table from reports/prompting.md"
+
+
+def test_the_readme_headline_table_agrees_with_the_study_report():
+    """Each success the README's headline table quotes is the study report's, row by row."""
+    rows = {}
+    for line in study_block((ROOT / "reports" / "prompting.md").read_text()).splitlines()[2:]:
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        rows[(cells[0], cells[1])] = cells
+    readme = (ROOT / "README.md").read_text()
+    headline = readme[readme.index("| model | paper's prompt: success"):]
+    headline = headline[:headline.index("\n\n")]
+    near, near_exact = "nearest-only (K 3, demonstrations, l2)", "nearest-only (K 3, demonstrations, l2) (exact history)"
+    expected = {"Qwen2.5-Coder 1.5B": (("Qwen2.5-Coder 1.5B", "chronological"), ("Qwen2.5-Coder 1.5B", near)),
+                "Qwen2.5-Coder 0.5B": (("Qwen2.5-Coder 0.5B", "chronological"), ("Qwen2.5-Coder 0.5B", near_exact)),
+                "Gemma 3 270M (embedded default)": (("Gemma 3 270M", "chronological"), ("Gemma 3 270M", near))}
+    for line in headline.splitlines()[2:]:
+        cells = [c.strip().replace("**", "") for c in line.strip("|").split("|")]
+        if cells[0] not in expected:
+            continue
+        paper, retrieval = expected.pop(cells[0])
+        assert cells[1] == rows[paper][5], (cells[0], "paper's prompt")
+        assert cells[3] == rows[retrieval][5], (cells[0], "nearest-only")
+        if rows[retrieval][3] != "-":  # the probe's gain, rounded to two places
+            gain = float(rows[retrieval][3].split()[0])
+            assert cells[4].split(" / ")[1].startswith(f"{gain:.2f}"), (cells[0], cells[4], gain)
+    assert not expected, f"rows missing from the README's headline table: {list(expected)}"

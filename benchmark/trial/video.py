@@ -65,7 +65,7 @@ class Track:
     joint_pos: np.ndarray  # (n, 12) canonical order
     eval_start: float = 0.0  # s: the evaluated policy's takeover (0: it acts throughout)
     acting: str = "policy"  # who acts from eval_start, for the banner
-    seeding: str = "seed policy"  # who acts before it
+    seeding: str = "seed policy (PPO)"  # who acts before it
     fall_time: float | None = None
     caption: str = ""  # e.g. "MuJoCo / A1 / flat / seed 0"
     meta: dict = field(default_factory=dict)

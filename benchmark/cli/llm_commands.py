@@ -8,6 +8,27 @@ import sys
 from pathlib import Path
 
 
+def cmd_throughput(args) -> int:
+    from benchmark.llm.models import require_models
+    from benchmark.llm.throughput import ThroughputRun, measure, table
+
+    require_models([args.llm])
+    run = ThroughputRun(model=args.llm, strategy=args.prompt_strategy, concurrency=tuple(args.concurrency),
+                        queries=args.queries, threads=args.threads, draft=args.draft)
+    result = measure(run)
+    if args.json:
+        print(json.dumps(result))
+        return 0
+    text = table(result)
+    print(text)
+    if args.out:
+        load, cores = os.getloadavg()[0], os.cpu_count()
+        Path(args.out).write_text(f"# Closed-loop throughput and the query floor\n\nMade with `bench {' '.join(args.argv)}` "
+                                  f"(machine load {load:.1f} on {cores} cores as it finished).\n\n{text}\n")
+        print(f"written to {args.out}", file=sys.stderr)
+    return 0
+
+
 def cmd_latency(args, threads: int | None) -> int:
     from benchmark.llm.latency import measure
     from benchmark.llm.strategies import DEFAULT_STRATEGY

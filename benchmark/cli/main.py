@@ -63,6 +63,8 @@ def dispatch(args: argparse.Namespace) -> int:
             return training_commands.cmd_train(_settings(args, TrainConfig), rewards, ppo)
         case "latency":
             return llm_commands.cmd_latency(args, runtime.threads)
+        case "throughput":
+            return llm_commands.cmd_throughput(args)
         case "validate":
             return check_commands.cmd_validate(_settings(args, ValidateConfig))
         case "gait":

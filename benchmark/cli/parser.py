@@ -2,7 +2,10 @@
 
 Examples:
   bench run --policy rl                        the seed PPO policy walks A1 in MuJoCo (seconds)
-  bench run                                    the main job: the embedded LLM walks A1 in MuJoCo
+  bench run                                    the main job: the embedded LLM (Gemma 3 270M) controls A1 in
+                                               MuJoCo under the paper's protocol, 5 trials (~20 min on 2 cores;
+                                               it stops walking at the takeover: NWT 0)
+  bench run --llm knn --trials 1 --video walk.gif   a reference model on the LLM's text channel, drawn as a clip
   bench list                                   engines, robots, terrains, policies and models
   bench run --sim pybullet --robot anymal --policy rl   5 trials of 10 s, a table of metrics
   bench run --policy stand --duration 5 --json one JSON object on stdout
@@ -27,7 +30,7 @@ from benchmark.llm.latency import MODES as LATENCY_MODES
 from benchmark.llm.strategies import DEFAULT_STRATEGY, STRATEGIES
 from benchmark.training.train import TrainConfig
 from benchmark.trial.registry import POLICIES
-from benchmark.trial.resources import DRAFTS, Runtime
+from benchmark.trial.resources import DEFAULT_DRAFT, DRAFTS, Runtime
 from benchmark.trial.video import VideoConfig
 
 
@@ -44,6 +47,10 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--trials", type=_number(int, True), default=5, help="number of trials (default 5, as in the paper)")
     run.add_argument("--seed", type=int, default=0, help="seed of the first trial; trial i uses seed+i (default 0)")
     run.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
+    run.add_argument("--concurrency", type=_number(int, True), default=1, metavar="N",
+                     help="run N trials side by side as threads sharing one model: an embedded model gets N "
+                          "llama.cpp slots, so their queries are read and decoded in shared batches; a server gets "
+                          "N requests in flight (default 1; results equal the sequential ones for reference models)")
     run.add_argument("--record", default=None, metavar="PATH.rrd",
                      help="write a Rerun recording: every trial in this one file, one recording per seed")
     run.add_argument("--record-dir", default=None, metavar="DIR", help="write one recording per trial into DIR")
@@ -63,6 +70,23 @@ def build_parser() -> argparse.ArgumentParser:
     view.add_argument("--bind", default="127.0.0.1", metavar="ADDR",
                       help="address the web viewer listens on (default 127.0.0.1: this machine only; reach it from "
                            "another with ssh -L, or name an address such as 0.0.0.0 to serve the network)")
+
+    throughput = sub.add_parser("throughput", help="closed-loop LLM trials an hour at N trials in lockstep, and each "
+                                                   "query against the model's floor",
+                                description=_doc("benchmark.llm.throughput"), formatter_class=fmt)
+    throughput.add_argument("--llm", default="embedded", metavar="MODEL",
+                            help="an embedded model or ladder name (llama.cpp's timings give the floor; default embedded)")
+    throughput.add_argument("--prompt-strategy", default="nearest-only", choices=list(STRATEGIES),
+                            help="the prompt (default nearest-only, the one a model walks on)")
+    throughput.add_argument("--concurrency", nargs="+", type=_number(int, True), default=[1, 2, 4], metavar="N",
+                            help="trials in lockstep, one level each; every level runs the same max(N) trials "
+                                 "(default 1 2 4)")
+    throughput.add_argument("--queries", type=_number(int, True), default=10,
+                            help="LLM queries a trial (a full trial has 100; default 10)")
+    throughput.add_argument("--threads", type=_number(int, True), default=None, help="llama.cpp threads (default: all cores)")
+    throughput.add_argument("--draft", default=DEFAULT_DRAFT, choices=DRAFTS, help=f"speculative decoding (default {DEFAULT_DRAFT})")
+    throughput.add_argument("--out", default=None, metavar="PATH.md", help="also write the table to this file")
+    throughput.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
 
     render = sub.add_parser("render", help="draw a recording's trials into GIF or MP4 clips (headless)",
                             description=_doc("benchmark.trial.video"), formatter_class=fmt)
@@ -105,8 +129,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help="an experiment with a [probe] table: its probe runs (every model and prompt strategy, "
                             "teacher-forced), its closed-loop trials, or both, the probe first (default all)")
     sweep.add_argument("--concurrency", type=_number(int, True), default=1, metavar="N",
-                       help="remote LLM servers: up to N trials in flight as threads of one process, sharing one "
-                            "client and rate limit (with --workers 1; default 1)")
+                       help="up to N trials in flight as threads of one process sharing one model: an embedded "
+                            "model gets N llama.cpp slots (queries read and decoded in shared batches), a server "
+                            "one client and rate limit (with --workers 1; default 1)")
     sweep.add_argument("--rate-limit", type=_number(float, True), default=None, metavar="RPM",
                        help="remote LLM servers: at most RPM queries a minute over all workers")
     sweep.add_argument("--threads", type=_number(int, True), default=None,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import subprocess
@@ -16,9 +17,9 @@ from benchmark.common.settings import build
 from benchmark.llm.controller import takeover_prompt
 from benchmark.llm.progress import RecentRate
 from benchmark.trial.cell import CellSpec, make_cell
-from benchmark.trial.resources import Resources, Runtime
+from benchmark.trial.resources import Resources, Runtime, SharedModels
 from benchmark.trial.runner import TrialResult, summarize
-from benchmark.trial.trials import TrialHooks, run_cell
+from benchmark.trial.trials import TrialHooks, run_cell, run_side_by_side
 from benchmark.trial.video import (
     TrackHook,
     VideoConfig,
@@ -88,6 +89,7 @@ class _Record(TrialHooks):
 
     def __init__(self, cell: CellSpec, folder: Path) -> None:
         self.cell, self.folder, self.written = cell, folder, []
+        self.recorders: dict = {}  # seed -> its recorder (trials may run side by side)
 
     def start(self, seed, sim, policy, episode):
         from benchmark.trial.recorder import Recorder
@@ -95,11 +97,11 @@ class _Record(TrialHooks):
         c = self.cell
         name = f"{c.sim}-{Path(c.robot).name}-{c.terrain}-{c.policy}-seed{seed}"
         meta = {**c.params(), "seed": seed, "eval_start": c.eval_start}
-        self.recorder = Recorder(self.folder / f"{name}.rrd", sim.robot, sim.terrain, sim, policy, name, meta)
-        return self.recorder.on_step
+        self.recorders[seed] = Recorder(self.folder / f"{name}.rrd", sim.robot, sim.terrain, sim, policy, name, meta)
+        return self.recorders[seed].on_step
 
     def end(self, seed, result) -> None:
-        self.written.append(self.recorder.write(result))
+        self.written.append(self.recorders.pop(seed).write(result))
 
 
 class _Video(TrialHooks):
@@ -107,17 +109,19 @@ class _Video(TrialHooks):
 
     def __init__(self, cell: CellSpec, path: Path, config: VideoConfig, many: bool) -> None:
         self.cell, self.path, self.config, self.many, self.written = cell, path, config, many, []
+        self.tracks: dict = {}  # seed -> (its state collector, its engine) (trials may run side by side)
 
     def start(self, seed, sim, policy, episode):
-        self.track_hook, self.sim = TrackHook(), sim
-        return self.track_hook.on_step
+        self.tracks[seed] = (TrackHook(), sim)
+        return self.tracks[seed][0].on_step
 
     def end(self, seed, result) -> None:
+        hook, sim = self.tracks.pop(seed)
         params = {**self.cell.params(), "seed": seed}
-        track = self.track_hook.track(eval_start=self.cell.eval_start, acting=acting_label(params),
-                                      fall_time=result.fall_time, caption=caption(params, self.sim.robot))
+        track = hook.track(eval_start=self.cell.eval_start, acting=acting_label(params), fall_time=result.fall_time,
+                           caption=caption(params, sim.robot))
         out = clip_path(self.path, seed, self.many)
-        self.written.append(render_clip(track, self.sim.robot, self.sim.terrain, out, self.config))
+        self.written.append(render_clip(track, sim.robot, sim.terrain, out, self.config))
 
 
 def cmd_run(args, values: dict, runtime: Runtime, video: dict | None = None) -> int:
@@ -146,11 +150,17 @@ def cmd_run(args, values: dict, runtime: Runtime, video: dict | None = None) -> 
     seeds = range(args.seed, args.seed + args.trials)
     trials_bar = tqdm(total=args.trials, desc=cell.label(), unit="trial", file=sys.stderr, disable=None)
     collect.on_end = lambda result: trials_bar.update()
-    error, interrupted, resources = None, False, Resources(runtime)
+    error, interrupted = None, False
+    concurrency = min(args.concurrency, args.trials)
+    shared = SharedModels() if concurrency > 1 else None
+    resources = Resources(runtime if shared is None else dataclasses.replace(runtime, slots=concurrency), shared)
     try:
-        with Interruption(what="trial in flight") as stop:
+        with Interruption(what="trial in flight" if shared is None else "trials in flight") as stop:
             hooks.append(_StopBetweenTrials(stop))
-            run_cell(cell, seeds, resources, hooks=hooks)
+            if shared is None:
+                run_cell(cell, seeds, resources, hooks=hooks)
+            else:
+                run_side_by_side(cell, list(seeds), resources, hooks, concurrency)
     except (OSError, RuntimeError) as err:  # keep what finished: report it, then the error
         error = err
     except (Interrupted, KeyboardInterrupt):
@@ -158,7 +168,9 @@ def cmd_run(args, values: dict, runtime: Runtime, video: dict | None = None) -> 
     finally:
         trials_bar.close()
         resources.close()
-    trials = collect.results
+        if shared is not None:
+            shared.close()
+    trials = sorted(collect.results, key=lambda t: t.seed)
     if error is not None and not trials:
         print(f"bench: error: {error}", file=sys.stderr)
         return 1

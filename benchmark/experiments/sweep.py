@@ -170,6 +170,7 @@ def _threads(todo: list[Trial], runtime: Runtime, concurrency: int, stop: Interr
     from concurrent.futures import ThreadPoolExecutor
 
     shared, local = SharedModels(), threading.local()
+    runtime = dataclasses.replace(runtime, slots=concurrency)  # an embedded model: one slot a trial, decodes batched
     workers: list[_Worker] = []
 
     def run(trial: Trial) -> dict:

@@ -211,7 +211,8 @@ class LLMPolicy:
     @classmethod
     def from_cell(cls, cell: CellSpec, robot: Robot, resources: Resources) -> LLMPolicy:
         s, rt = cell.settings, resources.runtime
-        key = (s.model, s.url, s.layout, s.server, rt.threads, rt.requests_per_minute, rt.cache, s.approximate)
+        key = (s.model, s.url, s.layout, s.server, rt.threads, rt.requests_per_minute, rt.cache, s.approximate,
+               rt.slots)
         return cls(robot, s, rt, model=resources.model(key, lambda: _new_model(s, rt)))
 
     def reset(self, seed: int) -> None:
@@ -332,6 +333,7 @@ class LLMPolicy:
             "approximate_history": self.settings.approximate,
             "clock": self.settings.clock,
             **closed_loop_diagnostics(q, self._trial.demonstrations, self.encoding),
+            **query_timings(q),
         }
         if self._trial.clock is not None:
             out.update(self._trial.clock.metrics())
@@ -347,6 +349,19 @@ class LLMPolicy:
     def close(self) -> None:
         if self._owns_model:
             self.model.close()
+
+
+def query_timings(queries: list[Query]) -> dict:
+    """Where the live queries' time went, from the server's own timings (llama.cpp): tokens read anew and decoded,
+    seconds evaluating and decoding, and the n-gram draft's acceptance. Empty where the server reports none."""
+    timed = [x.reply for x in queries if not x.reply.cached and x.reply.read_tokens is not None]
+    if not timed:
+        return {}
+    drafted = sum(r.draft_tokens for r in timed)
+    return {"read_tokens": float(np.mean([r.read_tokens for r in timed])),
+            "prefill_s_mean": float(np.mean([r.prefill_s for r in timed])),
+            "decode_s_mean": float(np.mean([r.decode_s for r in timed])),
+            "draft_tokens": drafted, "draft_acceptance": sum(r.draft_accepted for r in timed) / drafted if drafted else None}
 
 
 def strategy_label(settings: LLMSettings) -> str:
@@ -410,7 +425,8 @@ def _new_model(settings: LLMSettings, runtime: Runtime) -> LanguageModel:
     return make_model(settings.model, url=settings.url, layout=settings.layout, server=settings.server,
                       cache=runtime.cache and not live,
                       threads=runtime.threads, requests_per_minute=runtime.requests_per_minute,
-                      cache_reuse=SHIFT_CHUNK if settings.approximate else 0, draft=runtime.draft)
+                      cache_reuse=SHIFT_CHUNK if settings.approximate else 0, draft=runtime.draft,
+                      parallel=runtime.slots)
 
 
 def takeover_prompt(cell: CellSpec, seed: int = 0) -> str:

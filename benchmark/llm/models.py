@@ -77,6 +77,22 @@ class Reply:
     latency_s: float = 0.0  # the answering request alone, without retry waits
     retries: int = 0  # attempts before the one that answered
     cached: bool = False  # from the on-disk reply cache
+    # llama.cpp's own timings, where the server reports them (None elsewhere): where a query's time went
+    read_tokens: int | None = None  # prompt tokens evaluated anew (the rest came from the prefix cache)
+    prefill_s: float | None = None  # evaluating them
+    decode_s: float | None = None  # decoding the reply
+    draft_tokens: int = 0  # speculative decoding: tokens drafted (n-gram) and checked
+    draft_accepted: int = 0  # of which the model kept
+
+
+def llama_timings(timings: dict) -> dict:
+    """`Reply` fields from llama.cpp's `timings` (empty where a server reports none)."""
+    if not timings or "prompt_n" not in timings:
+        return {}
+    return {"read_tokens": int(timings["prompt_n"]), "prefill_s": float(timings.get("prompt_ms", 0.0)) / 1000.0,
+            "decode_s": float(timings.get("predicted_ms", 0.0)) / 1000.0,
+            "draft_tokens": int(timings.get("draft_n", 0) or 0),
+            "draft_accepted": int(timings.get("draft_n_accepted", 0) or 0)}
 
 
 class LanguageModel(Protocol):
@@ -155,7 +171,7 @@ class EmbeddedModel:
                    + (":ngram-draft" if draft == "ngram" else ""))
         params = xllamacpp.CommonParams()
         params.model.path = str(weights)
-        params.n_ctx = context
+        params.n_ctx = context * parallel  # llama.cpp splits the context between its slots
         params.n_parallel = parallel  # slots: concurrent requests decode in one batch
         params.warmup = False
         params.verbosity = -1  # llama.cpp logs every request otherwise
@@ -193,8 +209,8 @@ class EmbeddedModel:
 
     @classmethod
     def from_spec(cls, name: str | None, threads: int | None = None, cache_reuse: int = 0,
-                  draft: str = DEFAULT_DRAFT, **_: object) -> EmbeddedModel:
-        return cls(name, threads=threads, cache_reuse=cache_reuse, draft=draft)
+                  draft: str = DEFAULT_DRAFT, parallel: int = 1, **_: object) -> EmbeddedModel:
+        return cls(name, threads=threads, cache_reuse=cache_reuse, draft=draft, parallel=parallel)
 
     @property
     def url(self) -> str:
@@ -217,7 +233,7 @@ class EmbeddedModel:
             raise LLMError(f"embedded model failed: {result['error']}")
         usage, timings = result.get("usage", {}), result.get("timings", {})
         return Reply(result["choices"][0]["text"], usage.get("prompt_tokens", 0), usage.get("completion_tokens", 0),
-                     cached_tokens=int(timings.get("cache_n", 0) or 0), latency_s=latency)
+                     cached_tokens=int(timings.get("cache_n", 0) or 0), latency_s=latency, **llama_timings(timings))
 
     def _answer(self, request: dict) -> dict:
         """llama.cpp's answer, waited for in WAIT_STEP_S steps. It releases the GIL while it reads and decodes,
@@ -365,6 +381,7 @@ class OpenAIModel:
             raise LLMError(f"cannot reach {self.url} after {self.retries + 1} attempt(s); is the server running? "
                            f"(set --llm-url or {URL_ENV})") from None
         return Reply(text or "", *_usage(result), latency_s=raw.elapsed.total_seconds(),
+                     **llama_timings((result.model_extra or {}).get("timings") or {}),
                      retries=raw.retries_taken)
 
     def _respect_rate_limit(self) -> None:
@@ -497,8 +514,9 @@ def ladder_path(name: str) -> str:
 
 def make_model(spec: str, url: str | None = None, api_key: str | None = None, layout: str = "completions",
                cache: bool = True, threads: int | None = None, requests_per_minute: float | None = None,
-               cache_reuse: int = 0, server: str = "auto", draft: str = DEFAULT_DRAFT) -> LanguageModel:
-    """A model from its spec (see MODEL_FORMS), wrapped in the on-disk reply cache unless `cache` is off."""
+               cache_reuse: int = 0, server: str = "auto", draft: str = DEFAULT_DRAFT, parallel: int = 1) -> LanguageModel:
+    """A model from its spec (see MODEL_FORMS), wrapped in the on-disk reply cache unless `cache` is off. `parallel`:
+    an embedded model's llama.cpp slots, for trials in flight side by side (a server's own setting otherwise)."""
     from sims import load_entry_point
 
     from benchmark.llm import ladder
@@ -510,5 +528,5 @@ def make_model(spec: str, url: str | None = None, api_key: str | None = None, la
     cls = load_entry_point(MODELS[kind])
     model = cls.from_spec(name or None, url=url, api_key=api_key, layout=layout, threads=threads,
                           requests_per_minute=requests_per_minute, cache_reuse=cache_reuse, server=server,
-                          draft=draft)
+                          draft=draft, parallel=parallel)
     return CachedModel(model) if cache and getattr(cls, "cacheable", True) else model

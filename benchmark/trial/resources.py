@@ -32,6 +32,7 @@ class Runtime:
                                   "history's numbers) and checks the draft in one batch; none decodes token by token",
                          choices=DRAFTS)
     cache: bool = True  # the on-disk LLM reply cache
+    slots: int = 1  # embedded models: llama.cpp slots, one per trial in flight (`--concurrency`): their decodes batch
     requests_per_minute: float | None = None  # remote LLM servers: at most this many queries a minute
     price_in: float | None = setting(None, "USD per 1M input tokens, for a cost estimate", minimum=0)
     price_out: float | None = setting(None, "USD per 1M output tokens", minimum=0)

@@ -61,3 +61,22 @@ def run_cell(cell: CellSpec, seeds: Iterable[int], resources: Resources | None =
     finally:
         if own:
             resources.close()
+
+
+def run_side_by_side(cell: CellSpec, seeds: list[int], resources: Resources, hooks: Sequence[TrialHooks] = (),
+                     concurrency: int = 2) -> None:
+    """Up to `concurrency` trials of `cell` in flight as threads, each on engines of its own (engines are not
+    thread-safe), all asking the models of `resources.shared`: an embedded model made with `runtime.slots` =
+    `concurrency` gives each trial a llama.cpp slot, so their queries are read and decoded in shared batches."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    def one(seed: int) -> None:
+        mine = Resources(resources.runtime, resources.shared)
+        try:
+            run_cell(cell, [seed], mine, hooks=hooks)
+        finally:
+            mine.close()
+
+    with ThreadPoolExecutor(max_workers=concurrency, thread_name_prefix="trial") as pool:
+        for future in [pool.submit(one, seed) for seed in seeds]:
+            future.result()

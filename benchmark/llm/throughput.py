@@ -1,0 +1,179 @@
+"""How many closed-loop LLM trials an hour, and how close each query comes to what the model's speed allows.
+
+    bench throughput --llm qwen2.5-coder-1.5b --prompt-strategy nearest-only --concurrency 1 2 4 --queries 10
+
+**The floor.** A fresh model first reads a real takeover prompt cold (its prefill rate, tokens a second) and
+decodes 64 tokens with no grammar and no draft (its decode rate). Every query of the trials that follow then
+has a floor, the time those rates allow for what it did: tokens read anew / prefill rate + tokens decoded /
+decode rate. Measured seconds over the floor say how much goes elsewhere (the grammar's sampling, the
+harness) or, below 1, what the n-gram draft saves.
+
+**Trials in lockstep.** For each N, a fresh model with N llama.cpp slots runs the same trials (seeds 0 to
+T - 1, T the largest N) N at a time, as threads, each trial on engines of its own: their queries arrive
+together and llama.cpp reads and decodes them in shared batches. Each trial is shortened to `queries` LLM
+queries after the takeover (the paper's protocol otherwise: seed policy from 1 s, the model from 10 s);
+"trials an hour" counts 100-query trials at the measured rate, an extrapolation, and says so. Batched
+decoding can change logits slightly, so every reply is compared with the N = 1 reply for the same seed and
+query: the fraction identical, and the first query where a trial's replies part (closed loop: after that
+the prompts differ too).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+import time
+
+import numpy as np
+
+from benchmark.llm.controller import CONTROL_DT, LLMSettings, takeover_prompt
+from benchmark.llm.models import Constraint, Sampling
+from benchmark.trial.cell import CellSpec
+from benchmark.trial.resources import Resources, Runtime, SharedModels
+from benchmark.trial.trials import KeepPolicy, run_side_by_side
+
+TRIAL_QUERIES = 100  # the paper's protocol: 10 s of model control at 10 Hz
+DECODE_PROBE_TOKENS = 64
+
+
+@dataclasses.dataclass(frozen=True)
+class ThroughputRun:
+    """What `bench throughput` measures."""
+
+    model: str = "embedded"
+    strategy: str = "nearest-only"
+    concurrency: tuple[int, ...] = (1, 2, 4)
+    queries: int = 10  # LLM queries a trial (a full trial has 100)
+    threads: int | None = None
+    draft: str = Runtime.draft
+
+
+class _Trials(KeepPolicy):
+    """Every trial's policy, by seed (trials run side by side)."""
+
+    def __init__(self) -> None:
+        self.policies: dict[int, object] = {}
+
+    def start(self, seed, sim, policy, episode):
+        self.policies[seed] = policy
+
+
+def _cell(run: ThroughputRun) -> CellSpec:
+    settings = LLMSettings(model=run.model, prompt_strategy=run.strategy)
+    return CellSpec(sim="mujoco", robot="a1", policy="llm", duration=settings.llm_after + CONTROL_DT * run.queries,
+                    settings=settings)
+
+
+def model_rates(run: ThroughputRun, cell: CellSpec) -> dict:
+    """The model's prefill rate (a real takeover prompt, read cold) and decode rate (64 free tokens, greedy, no
+    draft), on a fresh model with one slot."""
+    from benchmark.llm.models import make_model
+
+    prompt = takeover_prompt(cell)
+    model = make_model(run.model, cache=False, threads=run.threads, draft="none")
+    try:
+        read = model.complete(prompt, Sampling(max_tokens=1), Constraint(), cold=True)
+        free = model.complete("Count: 1, 2, 3, 4, 5,", Sampling(max_tokens=DECODE_PROBE_TOKENS), Constraint(), cold=True)
+    finally:
+        model.close()
+    if read.read_tokens is None or free.decode_s is None:
+        raise ValueError(f"'{run.model}' reports no timings (llama.cpp's): the floor needs an embedded model or a "
+                         "llama.cpp server")
+    return {"prompt_tokens": read.prompt_tokens, "prefill_tok_s": read.read_tokens / read.prefill_s,
+            "decoded_tokens": free.completion_tokens, "decode_tok_s": free.completion_tokens / free.decode_s}
+
+
+def run_level(run: ThroughputRun, cell: CellSpec, seeds: list[int], n: int) -> dict:
+    """The trials of `seeds`, `n` at a time on one fresh model with `n` slots: wall time and every reply."""
+    runtime = Runtime(threads=run.threads, cache=False, draft=run.draft, slots=n)
+    shared = SharedModels()
+    resources = Resources(runtime, shared)
+    watch = _Trials()
+    started = time.perf_counter()
+    try:
+        run_side_by_side(cell, seeds, resources, [watch], concurrency=n)
+    finally:
+        wall = time.perf_counter() - started
+        resources.close()
+        shared.close()
+    queries = {seed: list(p.queries) for seed, p in watch.policies.items()}
+    return {"n": n, "wall_s": wall, "queries": queries}
+
+
+def floor_of(replies, rates: dict) -> np.ndarray:
+    """Per query: seconds the model's rates allow for the tokens it read anew and decoded."""
+    return np.array([r.read_tokens / rates["prefill_tok_s"] + r.completion_tokens / rates["decode_tok_s"]
+                     for r in replies])
+
+
+def measure(run: ThroughputRun) -> dict:
+    """The model's rates, then one row per concurrency level (see the module's docstring)."""
+    cell = _cell(run)
+    rates = model_rates(run, cell)
+    seeds = list(range(max(run.concurrency)))
+    levels = []
+    for n in sorted(set(run.concurrency)):
+        print(f"bench: throughput: {len(seeds)} trials of {run.queries} queries, {n} at a time ...", file=sys.stderr,
+              flush=True)
+        level = run_level(run, cell, seeds, n)
+        replies = [q.reply for qs in level["queries"].values() for q in qs]
+        total = len(replies)
+        row = {"n": n, "trials": len(level["queries"]), "queries": total, "wall_s": level["wall_s"],
+               "queries_per_hour": 3600.0 * total / level["wall_s"],
+               "latency_mean_s": float(np.mean([r.latency_s for r in replies])),
+               "read_tokens": float(np.mean([r.read_tokens or 0 for r in replies])),
+               "cached_tokens": float(np.mean([r.cached_tokens for r in replies])),
+               "decoded_tokens": float(np.mean([r.completion_tokens for r in replies])),
+               "prefill_s": float(np.mean([r.prefill_s or 0 for r in replies])),
+               "decode_s": float(np.mean([r.decode_s or 0 for r in replies])),
+               "floor_s": float(np.mean(floor_of(replies, rates)))}
+        drafted = sum(r.draft_tokens for r in replies)
+        row["draft_acceptance"] = sum(r.draft_accepted for r in replies) / drafted if drafted else None
+        row["trials_per_hour"] = row["queries_per_hour"] / TRIAL_QUERIES
+        row["_texts"] = {seed: [q.reply.text for q in qs] for seed, qs in level["queries"].items()}
+        levels.append(row)
+        print(f"bench: throughput: N = {n}: {row['queries_per_hour'] / TRIAL_QUERIES:.2f} trials an hour "
+              f"({total} queries in {level['wall_s']:.0f} s)", file=sys.stderr, flush=True)
+    base = levels[0]
+    for row in levels:
+        row["speedup"] = row["queries_per_hour"] / base["queries_per_hour"]
+        same = total = 0
+        parted = []
+        for seed, texts in row["_texts"].items():
+            ref = base["_texts"].get(seed, [])
+            pairs = list(zip(texts, ref))
+            same += sum(a == b for a, b in pairs)
+            total += len(pairs)
+            parted.append(next((i for i, (a, b) in enumerate(pairs) if a != b), None))
+        row["identical_to_first"] = same / total if total else None
+        row["first_difference"] = parted
+    for row in levels:
+        row.pop("_texts")
+    return {"model": run.model, "strategy": run.strategy, "queries_per_trial": run.queries, "rates": rates,
+            "levels": levels, "threads": run.threads, "draft": run.draft}
+
+
+def table(result: dict) -> str:
+    """The result as Markdown: the rates, then one row per concurrency level."""
+    r = result["rates"]
+    base = result["levels"][0]
+    lines = [f"{result['model']} on `{result['strategy']}` (A1, flat, MuJoCo; the paper's protocol, {result['queries_per_trial']} "
+             f"LLM queries a trial; draft {result['draft']}). Model rates, measured in this run on a fresh model: "
+             f"prefill {r['prefill_tok_s']:.0f} tokens/s (a {r['prompt_tokens']}-token takeover prompt read cold), "
+             f"decode {r['decode_tok_s']:.1f} tokens/s ({r['decoded_tokens']} free tokens, no grammar, no draft).", "",
+             f"Per query at N = {base['n']}: {base['read_tokens']:.0f} tokens read anew, {base['cached_tokens']:.0f} "
+             f"from the prefix cache, {base['decoded_tokens']:.0f} decoded; llama.cpp's own time {base['prefill_s']:.2f} s "
+             f"reading + {base['decode_s']:.2f} s decoding; floor {base['floor_s']:.2f} s; measured "
+             f"{base['latency_mean_s']:.2f} s = **{base['latency_mean_s'] / base['floor_s']:.2f} x the floor**"
+             + (f"; n-gram draft acceptance {base['draft_acceptance']:.2f}" if base["draft_acceptance"] is not None
+                else "") + ".", "",
+             "| trials at a time (N) | trials | queries | wall (s) | s a query, each trial | queries an hour | "
+             "trials an hour (100 queries, extrapolated) | x N=1 | replies identical to N=1 | first differing query, per trial |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for row in result["levels"]:
+        same = "-" if row["identical_to_first"] is None else f"{row['identical_to_first']:.2f}"
+        parted = ", ".join("none" if i is None else str(i) for i in row["first_difference"])
+        lines.append(f"| {row['n']} | {row['trials']} | {row['queries']} | {row['wall_s']:.0f} | "
+                     f"{row['latency_mean_s']:.2f} | {row['queries_per_hour']:.0f} | {row['trials_per_hour']:.2f} | "
+                     f"{row['speedup']:.2f} | {same} | {parted} |")
+    return "\n".join(lines)

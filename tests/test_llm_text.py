@@ -33,6 +33,30 @@ def test_default_encoding_maps_to_0_200_and_the_paper_code_to_0_100():
     assert ENCODINGS["E1"].encode([-1.234]) == "[-1.23]" and ENCODINGS["E2"].encode([-1.234]) == "[8.77]"
 
 
+@pytest.mark.parametrize("compact, wide", [("E5c", "E5"), ("E4c", "E4")])
+def test_a_compact_layout_round_trips_every_value_it_can_write(compact, wide):
+    """Every integer the compact variant can write decodes and re-encodes to itself, reads back as its wide twin
+    does, and a list of them is what its grammar and regex (the reply constraint) accept and the parser reads."""
+    import re
+
+    from benchmark.llm.replies import reply_regex
+
+    enc, twin = get_encoding(compact), get_encoding(wide)
+    low, high = enc.integer_range
+    every = np.arange(low, high + 1)
+    decoded = enc.decode(every.astype(float))
+    assert [int(n) for n in enc.encode(decoded)[1:-1].split(",")] == every.tolist()
+    np.testing.assert_array_equal(decoded, twin.decode(every.astype(float)))
+    for chunk in np.array_split(every, len(every) // 12):
+        chunk = chunk[:12]
+        text = enc.encode(enc.decode(chunk.astype(float)))
+        assert " " not in text and text.count(",") == 11
+        assert re.fullmatch(reply_regex(enc), text) and not re.fullmatch(reply_regex(twin), text)
+        np.testing.assert_array_equal(parse_reply("Output: " + text, enc), enc.decode(chunk.astype(float)))
+    assert '("," num){11}' in gbnf_grammar(enc) and '("," " " num){11}' in gbnf_grammar(twin)
+    assert "[n1,...,n12]" in describe_robot(load_robot("a1"), PromptConfig(encoding=compact))
+
+
 def test_observation_choices_select_the_paper_groups():
     assert [len(select(k)) for k in OBSERVATIONS] == [0, 6, 24, 30, 33]
     with pytest.raises(UnknownNameError, match="valid: O1, O2, O3, O4, O5"):

@@ -86,7 +86,7 @@ class LLMSettings:
     distance: str = setting("l2", "retrieval's distance on the written inputs: l2 (squared Euclidean, as knn) or l1",
                             choices=DISTANCES, added_later=True)
     prompt_parts: tuple[str, ...] = setting(PARTS, "description parts", choices=PARTS)
-    encoding: str = setting(DEFAULT_ENCODING, "numbers: " + "; ".join(f"{k} {e.title}" for k, e in ENCODINGS.items()),
+    encoding: str = setting(DEFAULT_ENCODING, "numbers: " + "; ".join(f"{k} {e.label}" for k, e in ENCODINGS.items()),
                             choices=tuple(ENCODINGS))
     observation: str = setting(DEFAULT_OBSERVATION, "prompt inputs: "
                                + "; ".join(f"{k} {v[0]}" for k, v in OBSERVATIONS.items()), choices=tuple(OBSERVATIONS))

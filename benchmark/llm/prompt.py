@@ -84,7 +84,7 @@ def _illustration(enc: Encoding) -> str:
     examples = ", ".join(f"{x:g} -> {enc.encode_value(x)}" for x in (-1.2, 0.0, 0.53))
     rounding = "rounded" if enc.decimals == 0 else f"{enc.decimals} decimals"
     return (f"Numbers are {enc.title}: v is written (v + {enc.offset:g}) * {enc.scale:g}, {rounding} "
-            f"({examples}). Reply with one line: Output: [n1, ..., n12]")
+            f"({examples}). Reply with one line: Output: [n1{enc.separator}...{enc.separator}n12]")
 
 
 def build_prompt(description: str, history: Sequence[Pair], obs: np.ndarray, config: PromptConfig,

@@ -56,7 +56,8 @@ def gbnf_grammar(enc: Encoding, count: int = 12) -> str:
         num = f"num ::= {sign}[0-9]{{1,{digits}}} \".\" " + " ".join(["[0-9]"] * enc.decimals)
     else:
         num = _int_rule(*enc.integer_range)
-    return f'root ::= " "? "[" num ("," " " num){{{count - 1}}} "]"\n{num}\n'
+    separator = " ".join(f'"{c}"' for c in enc.separator)  # "," " " or ","
+    return f'root ::= " "? "[" num ({separator} num){{{count - 1}}} "]"\n{num}\n'
 
 
 def json_schema(enc: Encoding, count: int = 12) -> dict:
@@ -81,7 +82,7 @@ def reply_regex(enc: Encoding, count: int = 12) -> str:
     else:
         low, high = enc.integer_range
         num = ("-?" if low < 0 else "") + f"[0-9]{{1,{len(str(high))}}}"
-    return f"\\[{num}(, {num}){{{count - 1}}}\\]"
+    return f"\\[{num}({enc.separator}{num}){{{count - 1}}}\\]"  # "," and " " need no escaping
 
 
 def reply_constraint(enc: Encoding, count: int = 12, constrained: bool = True):

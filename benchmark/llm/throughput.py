@@ -131,6 +131,7 @@ def measure(run: ThroughputRun) -> dict:
         row["draft_acceptance"] = sum(r.draft_accepted for r in replies) / drafted if drafted else None
         row["trials_per_hour"] = row["queries_per_hour"] / TRIAL_QUERIES
         row["_texts"] = {seed: [q.reply.text for q in qs] for seed, qs in level["queries"].items()}
+        row["_queries"] = level["queries"]
         levels.append(row)
         print(f"bench: throughput: N = {n}: {row['queries_per_hour'] / TRIAL_QUERIES:.2f} trials an hour "
               f"({total} queries in {level['wall_s']:.0f} s)", file=sys.stderr, flush=True)
@@ -147,10 +148,25 @@ def measure(run: ThroughputRun) -> dict:
             parted.append(next((i for i, (a, b) in enumerate(pairs) if a != b), None))
         row["identical_to_first"] = same / total if total else None
         row["first_difference"] = parted
+        row["action_diff_same_prompt"] = _same_prompt_action_diff(row["_queries"], base["_queries"])
     for row in levels:
         row.pop("_texts")
+        row.pop("_queries")
     return {"model": run.model, "strategy": run.strategy, "queries_per_trial": run.queries, "rates": rates,
             "levels": levels, "threads": run.threads, "draft": run.draft}
+
+
+def _same_prompt_action_diff(mine: dict, reference: dict) -> float | None:
+    """Mean |action difference| (action units) between replies to identical prompts: how far batching moves an
+    answer, apart from where the closed loop then goes."""
+    diffs = []
+    for seed, queries in mine.items():
+        for a, b in zip(queries, reference.get(seed, [])):
+            if a.prompt != b.prompt:
+                break
+            if a.action is not None and b.action is not None:
+                diffs.append(float(np.mean(np.abs(a.action - b.action))))
+    return float(np.mean(diffs)) if diffs else None
 
 
 def table(result: dict) -> str:
@@ -168,12 +184,14 @@ def table(result: dict) -> str:
              + (f"; n-gram draft acceptance {base['draft_acceptance']:.2f}" if base["draft_acceptance"] is not None
                 else "") + ".", "",
              "| trials at a time (N) | trials | queries | wall (s) | s a query, each trial | queries an hour | "
-             "trials an hour (100 queries, extrapolated) | x N=1 | replies identical to N=1 | first differing query, per trial |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "trials an hour (100 queries, extrapolated) | x N=1 | replies identical to N=1 | first differing query, per trial "
+             "| mean abs action difference, same prompt |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for row in result["levels"]:
         same = "-" if row["identical_to_first"] is None else f"{row['identical_to_first']:.2f}"
         parted = ", ".join("none" if i is None else str(i) for i in row["first_difference"])
+        diff = "-" if row["action_diff_same_prompt"] is None else f"{row['action_diff_same_prompt']:.3f}"
         lines.append(f"| {row['n']} | {row['trials']} | {row['queries']} | {row['wall_s']:.0f} | "
                      f"{row['latency_mean_s']:.2f} | {row['queries_per_hour']:.0f} | {row['trials_per_hour']:.2f} | "
-                     f"{row['speedup']:.2f} | {same} | {parted} |")
+                     f"{row['speedup']:.2f} | {same} | {parted} | {diff} |")
     return "\n".join(lines)

@@ -1,0 +1,62 @@
+"""Trials side by side (`--concurrency`): exactly the sequential results for reference models; for the embedded
+model, one loaded model with a slot a trial whose batched replies are measured against the sequential ones."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+from pathlib import Path
+
+import pytest
+
+TINY = Path(__file__).parent / "data" / "tiny_sweep.toml"
+BENCH = [sys.executable, "-m", "benchmark.cli"]
+
+
+def _run(*extra: str) -> dict:
+    out = subprocess.run([*BENCH, "run", "--llm", "knn", "--prompt-strategy", "nearest-only", "--trials", "4",
+                          "--duration", "11", "--json", *extra], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout)
+
+
+def test_trials_side_by_side_equal_the_sequential_ones_for_a_reference_model():
+    sequential, side_by_side = _run(), _run("--concurrency", "3")
+    keys = ("seed", "nwt", "success", "distance_m", "lateral_drift_m", "mean_vx", "fall_time", "queries")
+    assert [t["seed"] for t in side_by_side["trials"]] == [0, 1, 2, 3]
+    assert [{k: t[k] for k in keys} for t in side_by_side["trials"]] == \
+           [{k: t[k] for k in keys} for t in sequential["trials"]]
+
+
+def test_a_sweep_in_lockstep_stores_what_a_sequential_sweep_stores(tmp_path):
+    from benchmark.common.store import load_results
+
+    stores = {}
+    for concurrency in ("1", "3"):
+        out = subprocess.run([*BENCH, "sweep", str(TINY), "--concurrency", concurrency, "--results",
+                              str(tmp_path / concurrency)], capture_output=True, text=True, timeout=600)
+        assert out.returncode == 0, out.stderr
+        frame = load_results(tmp_path / concurrency).set_index("trial_id").sort_index()
+        stores[concurrency] = frame[["seed", "nwt", "success", "distance_m"]]
+    assert len(stores["1"]) >= 4 and stores["1"].equals(stores["3"])
+
+
+@pytest.mark.slow
+def test_the_embedded_model_in_lockstep_is_measured_against_its_sequential_replies():
+    """Gemma 270M, 2 trials of 3 queries, one then two at a time on one model: every reply parses, the first
+    prompt of each trial is the same at both levels, and a batched reply to the same prompt stays within a few
+    encoding steps of the sequential one (batched decoding may change logits slightly: measured, not assumed)."""
+    out = subprocess.run([*BENCH, "throughput", "--concurrency", "1", "2", "--queries", "3", "--threads", "2",
+                          "--json"], capture_output=True, text=True, timeout=900)
+    assert out.returncode == 0, out.stderr
+    result = json.loads(out.stdout)
+    first, second = result["levels"]
+    assert (first["n"], second["n"]) == (1, 2) and first["trials"] == second["trials"] == 2
+    assert first["queries"] == second["queries"] == 6
+    assert first["identical_to_first"] == 1.0 and 0.0 <= second["identical_to_first"] <= 1.0
+    assert second["action_diff_same_prompt"] is not None and second["action_diff_same_prompt"] < 0.3
+    rates = result["rates"]
+    assert rates["prefill_tok_s"] > 10 and rates["decode_tok_s"] > 1
+    assert first["floor_s"] > 0 and first["latency_mean_s"] > 0 and first["read_tokens"] > 0

@@ -13,7 +13,7 @@ def cmd_throughput(args) -> int:
     from benchmark.llm.throughput import ThroughputRun, measure, table
 
     require_models([args.llm])
-    run = ThroughputRun(model=args.llm, strategy=args.prompt_strategy, concurrency=tuple(args.concurrency),
+    run = ThroughputRun(model=args.llm, strategy=args.prompt_strategy, encoding=args.encoding, concurrency=tuple(args.concurrency),
                         queries=args.queries, threads=args.threads, draft=args.draft)
     result = measure(run)
     if args.json:

@@ -26,6 +26,7 @@ from benchmark.checks.validate import ValidateConfig
 from benchmark.cli.options import _cell_options, _doc, _number, _Parser, add_fields
 from benchmark.evaluate.probe import ProbeRun
 from benchmark.llm.controller import STRATEGY_FIELDS, LLMSettings
+from benchmark.llm.encodings import ENCODINGS
 from benchmark.llm.latency import MODES as LATENCY_MODES
 from benchmark.llm.strategies import DEFAULT_STRATEGY, STRATEGIES
 from benchmark.training.train import TrainConfig
@@ -78,6 +79,8 @@ def build_parser() -> argparse.ArgumentParser:
                             help="an embedded model or ladder name (llama.cpp's timings give the floor; default embedded)")
     throughput.add_argument("--prompt-strategy", default="nearest-only", choices=list(STRATEGIES),
                             help="the prompt (default nearest-only, the one a model walks on)")
+    throughput.add_argument("--encoding", default="E5", choices=list(ENCODINGS),
+                            help="the number layout (default E5; E5c and E4c are the compact variants)")
     throughput.add_argument("--concurrency", nargs="+", type=_number(int, True), default=[1, 2, 4], metavar="N",
                             help="trials in lockstep, one level each; every level runs the same max(N) trials "
                                  "(default 1 2 4)")

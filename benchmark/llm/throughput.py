@@ -42,6 +42,7 @@ class ThroughputRun:
 
     model: str = "embedded"
     strategy: str = "nearest-only"
+    encoding: str = "E5"
     concurrency: tuple[int, ...] = (1, 2, 4)
     queries: int = 10  # LLM queries a trial (a full trial has 100)
     threads: int | None = None
@@ -59,7 +60,7 @@ class _Trials(KeepPolicy):
 
 
 def _cell(run: ThroughputRun) -> CellSpec:
-    settings = LLMSettings(model=run.model, prompt_strategy=run.strategy)
+    settings = LLMSettings(model=run.model, prompt_strategy=run.strategy, encoding=run.encoding)
     return CellSpec(sim="mujoco", robot="a1", policy="llm", duration=settings.llm_after + CONTROL_DT * run.queries,
                     settings=settings)
 
@@ -120,6 +121,7 @@ def measure(run: ThroughputRun) -> dict:
         total = len(replies)
         row = {"n": n, "trials": len(level["queries"]), "queries": total, "wall_s": level["wall_s"],
                "queries_per_hour": 3600.0 * total / level["wall_s"],
+               "parse_failures": sum(not q.parsed for qs in level["queries"].values() for q in qs),
                "latency_mean_s": float(np.mean([r.latency_s for r in replies])),
                "read_tokens": float(np.mean([r.read_tokens or 0 for r in replies])),
                "cached_tokens": float(np.mean([r.cached_tokens for r in replies])),
@@ -152,7 +154,7 @@ def measure(run: ThroughputRun) -> dict:
     for row in levels:
         row.pop("_texts")
         row.pop("_queries")
-    return {"model": run.model, "strategy": run.strategy, "queries_per_trial": run.queries, "rates": rates,
+    return {"model": run.model, "strategy": run.strategy, "encoding": run.encoding, "queries_per_trial": run.queries, "rates": rates,
             "levels": levels, "threads": run.threads, "draft": run.draft}
 
 
@@ -173,7 +175,7 @@ def table(result: dict) -> str:
     """The result as Markdown: the rates, then one row per concurrency level."""
     r = result["rates"]
     base = result["levels"][0]
-    lines = [f"{result['model']} on `{result['strategy']}` (A1, flat, MuJoCo; the paper's protocol, {result['queries_per_trial']} "
+    lines = [f"{result['model']} on `{result['strategy']}`, encoding {result['encoding']} (A1, flat, MuJoCo; the paper's protocol, {result['queries_per_trial']} "
              f"LLM queries a trial; draft {result['draft']}). Model rates, measured in this run on a fresh model: "
              f"prefill {r['prefill_tok_s']:.0f} tokens/s (a {r['prompt_tokens']}-token takeover prompt read cold), "
              f"decode {r['decode_tok_s']:.1f} tokens/s ({r['decoded_tokens']} free tokens, no grammar, no draft).", "",

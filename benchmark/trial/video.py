@@ -29,6 +29,7 @@ FORMATS = (".gif", ".mp4")
 SEED_COLOR = (70, 130, 200)  # banner and bar: the seed policy acts
 MODEL_COLOR = (230, 140, 40)  # the evaluated policy (an LLM from its takeover) acts
 FALL_COLOR = (200, 50, 50)
+CAPTION_COLOR = (60, 60, 60)
 ROBOT_RGBA = (0.78, 0.67, 0.35, 1.0)
 FOOT_RGBA = (0.15, 0.15, 0.15, 1.0)
 
@@ -257,7 +258,7 @@ def render_frames(track: Track, robot: Robot, terrain: Terrain, config: VideoCon
             color = MODEL_COLOR if model_acts else SEED_COLOR
             lines = [(f"{track.acting if model_acts else track.seeding}   t = {t:4.1f} s", color)]
             if track.caption:
-                lines.append((track.caption, (60, 60, 60)))
+                lines.append((track.caption, CAPTION_COLOR))
             if track.fall_time is not None and t >= track.fall_time - 1e-9:
                 lines.append((f"fell at {track.fall_time:.1f} s", FALL_COLOR))
             frames.append(_banner(scene.draw(), lines, t / total, mark, color))
@@ -286,6 +287,10 @@ def _write_gif(frames: list[np.ndarray], path: Path, fps: float) -> None:
     from PIL import Image
 
     sample = np.concatenate(frames[:: max(1, len(frames) // 12)], axis=0)
+    swatch = np.zeros((8, sample.shape[1], 3), dtype=np.uint8)  # the banner's colours, however rare in the clip
+    for i, color in enumerate((SEED_COLOR, MODEL_COLOR, FALL_COLOR, CAPTION_COLOR, (255, 255, 255))):
+        swatch[:, i * 8:(i + 1) * 8] = color
+    sample = np.concatenate([sample] + [swatch] * 40, axis=0)
     palette = Image.fromarray(sample).quantize(colors=GIF_COLORS, method=Image.Quantize.MEDIANCUT)
     images = [Image.fromarray(f).quantize(palette=palette, dither=Image.Dither.NONE) for f in frames]
     images[0].save(path, format="GIF", save_all=True, append_images=images[1:], duration=round(1000.0 / fps), loop=0)

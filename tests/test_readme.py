@@ -77,6 +77,8 @@ ADAPT: dict[str, tuple[list[str], dict[str, str]] | str] = {
     "bench report reports/data/prompting --out study": ([], {"reports/data/prompting": str(ROOT / "reports" / "data"
                                                                                           / "prompting")}),
     "bench render walk.rrd --out walk.mp4": ([], {}),  # the recording of `bench run --policy rl --record walk.rrd`
+    "bench throughput --llm qwen2.5-coder-1.5b --concurrency 1 2 4 --queries 10":
+        ([], {"qwen2.5-coder-1.5b": "embedded", "4": "1", "10": "2"}),  # the ladder's model is an optional extra
 }
 
 
@@ -109,7 +111,7 @@ def workdir(tmp_path_factory):
 
 
 SLOW = ("bench latency", "bench run --duration 2.5", "bench probe --llm embedded", "bench run --sim newton",
-        "bench perf --sim newton", "bench train",  # over 30 s on 2 cores: `pytest -m "not slow"` leaves them out
+        "bench perf --sim newton", "bench train", "bench throughput",  # over 30 s on 2 cores: `-m "not slow"` skips
         "bench run --policy rl --policy-file")  # evaluates what the slow `bench train` recipe wrote
 RUNNABLE = [pytest.param(c, marks=[pytest.mark.slow] if c.startswith(SLOW) else [], id=c[6:50])
             for c in readme_commands() if isinstance(ADAPT.get(c), tuple)]

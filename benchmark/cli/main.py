@@ -94,6 +94,11 @@ def main(argv: list[str] | None = None) -> int:
     except (CliError, UnknownNameError, ValueError) as err:
         print(f"bench: error: {err}", file=sys.stderr)
         return leave(2)
+    except BrokenPipeError:  # the reader went away (`bench sweep --list | head`): stop quietly
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # no second error when Python flushes stdout
+        return leave(0)
     except (Interrupted, KeyboardInterrupt):  # a command that says what it kept returns 130 itself
         print("bench: interrupted: everything finished is stored; run the same command again to resume", file=sys.stderr)
         return leave(130)

@@ -20,15 +20,7 @@ from benchmark.trial.cell import CellSpec, make_cell
 from benchmark.trial.resources import Resources, Runtime, SharedModels
 from benchmark.trial.runner import TrialResult, summarize
 from benchmark.trial.trials import TrialHooks, run_cell, run_side_by_side
-from benchmark.trial.video import (
-    TrackHook,
-    VideoConfig,
-    acting_label,
-    caption,
-    check_video_path,
-    clip_path,
-    render_clip,
-)
+from benchmark.trial.video import TrackHook, VideoConfig, check_video_path, clip_path, render_clip, track_labels
 
 
 class _Collect(TrialHooks):
@@ -84,6 +76,11 @@ class _QueryBar(TrialHooks):
             self.bar.close()
 
 
+def trial_params(cell: CellSpec, seed: int) -> dict:
+    """A trial's cell parameters with its seed and takeover time: a recording's meta, a clip's labels."""
+    return {**cell.params(), "seed": seed, "eval_start": cell.eval_start}
+
+
 class _Record(TrialHooks):
     """One Rerun recording per trial, into a folder (`--record-dir`) or merged into one file at the end."""
 
@@ -96,8 +93,8 @@ class _Record(TrialHooks):
 
         c = self.cell
         name = f"{c.sim}-{Path(c.robot).name}-{c.terrain}-{c.policy}-seed{seed}"
-        meta = {**c.params(), "seed": seed, "eval_start": c.eval_start}
-        self.recorders[seed] = Recorder(self.folder / f"{name}.rrd", sim.robot, sim.terrain, sim, policy, name, meta)
+        self.recorders[seed] = Recorder(self.folder / f"{name}.rrd", sim.robot, sim.terrain, sim, policy, name,
+                                        trial_params(c, seed))
         return self.recorders[seed].on_step
 
     def end(self, seed, result) -> None:
@@ -117,9 +114,7 @@ class _Video(TrialHooks):
 
     def end(self, seed, result) -> None:
         hook, sim = self.tracks.pop(seed)
-        params = {**self.cell.params(), "seed": seed}
-        track = hook.track(eval_start=self.cell.eval_start, acting=acting_label(params), fall_time=result.fall_time,
-                           caption=caption(params, sim.robot))
+        track = hook.track(**track_labels(trial_params(self.cell, seed), sim.robot, result.fall_time))
         out = clip_path(self.path, seed, self.many)
         self.written.append(render_clip(track, sim.robot, sim.terrain, out, self.config))
 

@@ -26,11 +26,11 @@ import time
 
 import numpy as np
 
-from benchmark.llm.controller import CONTROL_DT, LLMSettings, takeover_prompt
+from benchmark.llm.controller import CONTROL_DT, LLMSettings, query_timings, takeover_prompt
 from benchmark.llm.models import Constraint, Sampling
 from benchmark.trial.cell import CellSpec
 from benchmark.trial.resources import Resources, Runtime, SharedModels
-from benchmark.trial.trials import KeepPolicy, run_side_by_side
+from benchmark.trial.trials import TrialHooks, run_side_by_side
 
 TRIAL_QUERIES = 100  # the paper's protocol: 10 s of model control at 10 Hz
 DECODE_PROBE_TOKENS = 64
@@ -49,7 +49,7 @@ class ThroughputRun:
     draft: str = Runtime.draft
 
 
-class _Trials(KeepPolicy):
+class _Trials(TrialHooks):
     """Every trial's policy, by seed (trials run side by side)."""
 
     def __init__(self) -> None:
@@ -112,63 +112,51 @@ def measure(run: ThroughputRun) -> dict:
     cell = _cell(run)
     rates = model_rates(run, cell)
     seeds = list(range(max(run.concurrency)))
-    levels = []
+    levels, first = [], None  # first: the lowest level's queries by seed, what every level is compared with
     for n in sorted(set(run.concurrency)):
         print(f"bench: throughput: {len(seeds)} trials of {run.queries} queries, {n} at a time ...", file=sys.stderr,
               flush=True)
         level = run_level(run, cell, seeds, n)
-        replies = [q.reply for qs in level["queries"].values() for q in qs]
-        total = len(replies)
-        row = {"n": n, "trials": len(level["queries"]), "queries": total, "wall_s": level["wall_s"],
-               "queries_per_hour": 3600.0 * total / level["wall_s"],
-               "parse_failures": sum(not q.parsed for qs in level["queries"].values() for q in qs),
+        by_seed = level["queries"]
+        first = by_seed if first is None else first
+        queries = [q for qs in by_seed.values() for q in qs]
+        replies = [q.reply for q in queries]
+        row = {"n": n, "trials": len(by_seed), "queries": len(queries), "wall_s": level["wall_s"],
+               "queries_per_hour": 3600.0 * len(queries) / level["wall_s"],
+               "parse_failures": sum(not q.parsed for q in queries),
                "latency_mean_s": float(np.mean([r.latency_s for r in replies])),
-               "read_tokens": float(np.mean([r.read_tokens or 0 for r in replies])),
                "cached_tokens": float(np.mean([r.cached_tokens for r in replies])),
                "decoded_tokens": float(np.mean([r.completion_tokens for r in replies])),
-               "prefill_s": float(np.mean([r.prefill_s or 0 for r in replies])),
-               "decode_s": float(np.mean([r.decode_s or 0 for r in replies])),
-               "floor_s": float(np.mean(floor_of(replies, rates)))}
-        drafted = sum(r.draft_tokens for r in replies)
-        row["draft_acceptance"] = sum(r.draft_accepted for r in replies) / drafted if drafted else None
+               "floor_s": float(np.mean(floor_of(replies, rates))), **query_timings(queries),
+               **_agreement(by_seed, first)}
         row["trials_per_hour"] = row["queries_per_hour"] / TRIAL_QUERIES
-        row["_texts"] = {seed: [q.reply.text for q in qs] for seed, qs in level["queries"].items()}
-        row["_queries"] = level["queries"]
         levels.append(row)
-        print(f"bench: throughput: N = {n}: {row['queries_per_hour'] / TRIAL_QUERIES:.2f} trials an hour "
-              f"({total} queries in {level['wall_s']:.0f} s)", file=sys.stderr, flush=True)
-    base = levels[0]
+        print(f"bench: throughput: N = {n}: {row['trials_per_hour']:.2f} trials an hour "
+              f"({len(queries)} queries in {level['wall_s']:.0f} s)", file=sys.stderr, flush=True)
     for row in levels:
-        row["speedup"] = row["queries_per_hour"] / base["queries_per_hour"]
-        same = total = 0
-        parted = []
-        for seed, texts in row["_texts"].items():
-            ref = base["_texts"].get(seed, [])
-            pairs = list(zip(texts, ref))
-            same += sum(a == b for a, b in pairs)
-            total += len(pairs)
-            parted.append(next((i for i, (a, b) in enumerate(pairs) if a != b), None))
-        row["identical_to_first"] = same / total if total else None
-        row["first_difference"] = parted
-        row["action_diff_same_prompt"] = _same_prompt_action_diff(row["_queries"], base["_queries"])
-    for row in levels:
-        row.pop("_texts")
-        row.pop("_queries")
-    return {"model": run.model, "strategy": run.strategy, "encoding": run.encoding, "queries_per_trial": run.queries, "rates": rates,
-            "levels": levels, "threads": run.threads, "draft": run.draft}
+        row["speedup"] = row["queries_per_hour"] / levels[0]["queries_per_hour"]
+    return {"model": run.model, "strategy": run.strategy, "encoding": run.encoding, "queries_per_trial": run.queries,
+            "rates": rates, "levels": levels, "threads": run.threads, "draft": run.draft}
 
 
-def _same_prompt_action_diff(mine: dict, reference: dict) -> float | None:
-    """Mean |action difference| (action units) between replies to identical prompts: how far batching moves an
-    answer, apart from where the closed loop then goes."""
-    diffs = []
+def _agreement(mine: dict, reference: dict) -> dict:
+    """Each trial's replies against the reference level's for the same seed, query by query: the fraction identical,
+    the first query where they part (None: never), and the mean |action difference| (action units) between replies
+    to identical prompts, which is how far batching moves an answer apart from where the closed loop then goes."""
+    same = total = 0
+    parted, diffs = [], []
     for seed, queries in mine.items():
-        for a, b in zip(queries, reference.get(seed, [])):
+        pairs = list(zip(queries, reference.get(seed, [])))
+        same += sum(a.reply.text == b.reply.text for a, b in pairs)
+        total += len(pairs)
+        parted.append(next((i for i, (a, b) in enumerate(pairs) if a.reply.text != b.reply.text), None))
+        for a, b in pairs:
             if a.prompt != b.prompt:
                 break
             if a.action is not None and b.action is not None:
                 diffs.append(float(np.mean(np.abs(a.action - b.action))))
-    return float(np.mean(diffs)) if diffs else None
+    return {"identical_to_first": same / total if total else None, "first_difference": parted,
+            "action_diff_same_prompt": float(np.mean(diffs)) if diffs else None}
 
 
 def table(result: dict) -> str:
@@ -180,10 +168,10 @@ def table(result: dict) -> str:
              f"prefill {r['prefill_tok_s']:.0f} tokens/s (a {r['prompt_tokens']}-token takeover prompt read cold), "
              f"decode {r['decode_tok_s']:.1f} tokens/s ({r['decoded_tokens']} free tokens, no grammar, no draft).", "",
              f"Per query at N = {base['n']}: {base['read_tokens']:.0f} tokens read anew, {base['cached_tokens']:.0f} "
-             f"from the prefix cache, {base['decoded_tokens']:.0f} decoded; llama.cpp's own time {base['prefill_s']:.2f} s "
-             f"reading + {base['decode_s']:.2f} s decoding; floor {base['floor_s']:.2f} s; measured "
+             f"from the prefix cache, {base['decoded_tokens']:.0f} decoded; llama.cpp's own time {base['prefill_s_mean']:.2f} s "
+             f"reading + {base['decode_s_mean']:.2f} s decoding; floor {base['floor_s']:.2f} s; measured "
              f"{base['latency_mean_s']:.2f} s = **{base['latency_mean_s'] / base['floor_s']:.2f} x the floor**"
-             + (f"; n-gram draft acceptance {base['draft_acceptance']:.2f}" if base["draft_acceptance"] is not None
+             + (f"; n-gram draft acceptance {base['draft_acceptance']:.2f}" if base.get("draft_acceptance") is not None
                 else "") + ".", "",
              "| trials at a time (N) | trials | queries | wall (s) | s a query, each trial | queries an hour | "
              "trials an hour (100 queries, extrapolated) | x N=1 | replies identical to N=1 | first differing query, per trial "

@@ -22,7 +22,7 @@ import numpy as np
 
 from benchmark.trial.control import ControlLoop
 from benchmark.trial.runner import TrialResult
-from benchmark.trial.video import Track, acting_label, caption
+from benchmark.trial.video import Track, track_labels
 from robots import CANONICAL_JOINTS, LEGS, Robot, load_robot
 from robots.derive_urdf import rpy_to_matrix
 from sims.terrain import Terrain
@@ -276,8 +276,7 @@ def read_tracks(path: Path) -> list[Track]:
         result = meta.get("result", {})
         tracks.append(Track(times[order], np.array(_values(base, "Transform3D:translation"), dtype=float)
                             .reshape(-1, 3)[order], xyzw[:, [3, 0, 1, 2]], joints.reshape(len(times), -1),
-                            eval_start=float(meta.get("eval_start", 0.0)), acting=acting_label(meta),
-                            fall_time=result.get("fall_time"), caption=caption(meta, robot), meta=meta))
+                            meta=meta, **track_labels(meta, robot, result.get("fall_time"))))
     return tracks
 
 

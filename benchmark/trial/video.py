@@ -100,6 +100,13 @@ def caption(params: dict, robot: Robot) -> str:
     return f"{params.get('sim', '?')} / {robot.title} / {params.get('terrain', '?')} / seed {params.get('seed', '?')}"
 
 
+def track_labels(params: dict, robot: Robot, fall_time: float | None) -> dict:
+    """A `Track`'s labels from a trial's cell parameters with its `seed` and `eval_start` (as a recording's meta
+    holds them): when the evaluated policy takes over, who it is, the caption, and the fall."""
+    return {"eval_start": float(params.get("eval_start", 0.0)), "acting": acting_label(params),
+            "caption": caption(params, robot), "fall_time": fall_time}
+
+
 def clip_path(path: Path, seed: int, many: bool) -> Path:
     """`path` itself for a single trial; `stem-seedN.ext` beside it when a run has several."""
     return path.with_name(f"{path.stem}-seed{seed}{path.suffix}") if many else path

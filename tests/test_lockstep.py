@@ -51,10 +51,12 @@ def test_the_embedded_model_in_lockstep_is_measured_against_its_sequential_repli
     prompt: 86 against 81, then 100s against 101s), so agreement is measured, not assumed: the difference on the
     same prompt is reported and stays within the range of a plausible answer."""
     out = subprocess.run([*BENCH, "throughput", "--concurrency", "1", "2", "--queries", "3", "--threads", "2",
-                          "--json"], capture_output=True, text=True, timeout=900)
+                          "--drafts", "ngram", "none", "--json"], capture_output=True, text=True, timeout=900)
     assert out.returncode == 0, out.stderr
     result = json.loads(out.stdout)
-    first, second = result["levels"]
+    first, second, *undrafted = result["levels"]
+    assert [(row["n"], row["draft"]) for row in undrafted] == [(1, "none"), (2, "none")]  # each against the first
+    assert all(0.0 <= row["identical_to_first"] <= 1.0 and row["parse_failures"] == 0 for row in undrafted)
     assert (first["n"], second["n"]) == (1, 2) and first["trials"] == second["trials"] == 2
     assert first["queries"] == second["queries"] == 6
     assert first["identical_to_first"] == 1.0 and 0.0 <= second["identical_to_first"] <= 1.0

@@ -14,7 +14,7 @@ def cmd_throughput(args) -> int:
 
     require_models([args.llm])
     run = ThroughputRun(model=args.llm, strategy=args.prompt_strategy, encoding=args.encoding, concurrency=tuple(args.concurrency),
-                        queries=args.queries, threads=args.threads, draft=args.draft)
+                        queries=args.queries, threads=args.threads, drafts=tuple(args.drafts))
     result = measure(run)
     if args.json:
         print(json.dumps(result))

@@ -87,7 +87,9 @@ def build_parser() -> argparse.ArgumentParser:
     throughput.add_argument("--queries", type=_number(int, True), default=10,
                             help="LLM queries a trial (a full trial has 100; default 10)")
     throughput.add_argument("--threads", type=_number(int, True), default=None, help="llama.cpp threads (default: all cores)")
-    throughput.add_argument("--draft", default=DEFAULT_DRAFT, choices=DRAFTS, help=f"speculative decoding (default {DEFAULT_DRAFT})")
+    throughput.add_argument("--drafts", nargs="+", default=[DEFAULT_DRAFT], choices=DRAFTS, metavar="DRAFT",
+                            help=f"speculative decoding, one set of levels each, compared with the first "
+                                 f"({', '.join(DRAFTS)}; default {DEFAULT_DRAFT})")
     throughput.add_argument("--out", default=None, metavar="PATH.md", help="also write the table to this file")
     throughput.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
 

@@ -16,6 +16,11 @@ queries after the takeover (the paper's protocol otherwise: seed policy from 1 s
 decoding can change logits slightly, so every reply is compared with the N = 1 reply for the same seed and
 query: the fraction identical, and the first query where a trial's replies part (closed loop: after that
 the prompts differ too).
+
+**Drafts.** `--drafts ngram none` runs every level once per draft setting, in that order, all compared with
+the first: speculative decoding keeps greedy replies in principle (a draft token is kept only where the
+model would have chosen it), so the agreement column checks that, and the seconds a query say whether
+checking drafts pays on this machine.
 """
 
 from __future__ import annotations
@@ -46,7 +51,7 @@ class ThroughputRun:
     concurrency: tuple[int, ...] = (1, 2, 4)
     queries: int = 10  # LLM queries a trial (a full trial has 100)
     threads: int | None = None
-    draft: str = Runtime.draft
+    drafts: tuple[str, ...] = (Runtime.draft,)  # speculative decoding settings, one set of levels each
 
 
 class _Trials(TrialHooks):
@@ -84,9 +89,9 @@ def model_rates(run: ThroughputRun, cell: CellSpec) -> dict:
             "decoded_tokens": free.completion_tokens, "decode_tok_s": free.completion_tokens / free.decode_s}
 
 
-def run_level(run: ThroughputRun, cell: CellSpec, seeds: list[int], n: int) -> dict:
+def run_level(run: ThroughputRun, cell: CellSpec, seeds: list[int], n: int, draft: str) -> dict:
     """The trials of `seeds`, `n` at a time on one fresh model with `n` slots: wall time and every reply."""
-    runtime = Runtime(threads=run.threads, cache=False, draft=run.draft, slots=n)
+    runtime = Runtime(threads=run.threads, cache=False, draft=draft, slots=n)
     shared = SharedModels()
     resources = Resources(runtime, shared)
     watch = _Trials()
@@ -113,15 +118,15 @@ def measure(run: ThroughputRun) -> dict:
     rates = model_rates(run, cell)
     seeds = list(range(max(run.concurrency)))
     levels, first = [], None  # first: the lowest level's queries by seed, what every level is compared with
-    for n in sorted(set(run.concurrency)):
-        print(f"bench: throughput: {len(seeds)} trials of {run.queries} queries, {n} at a time ...", file=sys.stderr,
-              flush=True)
-        level = run_level(run, cell, seeds, n)
+    for draft, n in [(d, n) for d in dict.fromkeys(run.drafts) for n in sorted(set(run.concurrency))]:
+        print(f"bench: throughput: {len(seeds)} trials of {run.queries} queries, {n} at a time, draft {draft} ...",
+              file=sys.stderr, flush=True)
+        level = run_level(run, cell, seeds, n, draft)
         by_seed = level["queries"]
         first = by_seed if first is None else first
         queries = [q for qs in by_seed.values() for q in qs]
         replies = [q.reply for q in queries]
-        row = {"n": n, "trials": len(by_seed), "queries": len(queries), "wall_s": level["wall_s"],
+        row = {"n": n, "draft": draft, "trials": len(by_seed), "queries": len(queries), "wall_s": level["wall_s"],
                "queries_per_hour": 3600.0 * len(queries) / level["wall_s"],
                "parse_failures": sum(not q.parsed for q in queries),
                "latency_mean_s": float(np.mean([r.latency_s for r in replies])),
@@ -136,7 +141,7 @@ def measure(run: ThroughputRun) -> dict:
     for row in levels:
         row["speedup"] = row["queries_per_hour"] / levels[0]["queries_per_hour"]
     return {"model": run.model, "strategy": run.strategy, "encoding": run.encoding, "queries_per_trial": run.queries,
-            "rates": rates, "levels": levels, "threads": run.threads, "draft": run.draft}
+            "rates": rates, "levels": levels, "threads": run.threads, "drafts": list(dict.fromkeys(run.drafts))}
 
 
 def _agreement(mine: dict, reference: dict) -> dict:
@@ -160,28 +165,28 @@ def _agreement(mine: dict, reference: dict) -> dict:
 
 
 def table(result: dict) -> str:
-    """The result as Markdown: the rates, then one row per concurrency level."""
+    """The result as Markdown: the rates, then one row per concurrency level and draft, each against the first."""
     r = result["rates"]
     base = result["levels"][0]
     lines = [f"{result['model']} on `{result['strategy']}`, encoding {result['encoding']} (A1, flat, MuJoCo; the paper's protocol, {result['queries_per_trial']} "
-             f"LLM queries a trial; draft {result['draft']}). Model rates, measured in this run on a fresh model: "
+             f"LLM queries a trial; draft {', '.join(result['drafts'])}). Model rates, measured in this run on a fresh model: "
              f"prefill {r['prefill_tok_s']:.0f} tokens/s (a {r['prompt_tokens']}-token takeover prompt read cold), "
              f"decode {r['decode_tok_s']:.1f} tokens/s ({r['decoded_tokens']} free tokens, no grammar, no draft).", "",
-             f"Per query at N = {base['n']}: {base['read_tokens']:.0f} tokens read anew, {base['cached_tokens']:.0f} "
+             f"Per query at N = {base['n']}, draft {base['draft']}: {base['read_tokens']:.0f} tokens read anew, {base['cached_tokens']:.0f} "
              f"from the prefix cache, {base['decoded_tokens']:.0f} decoded; llama.cpp's own time {base['prefill_s_mean']:.2f} s "
              f"reading + {base['decode_s_mean']:.2f} s decoding; floor {base['floor_s']:.2f} s; measured "
              f"{base['latency_mean_s']:.2f} s = **{base['latency_mean_s'] / base['floor_s']:.2f} x the floor**"
              + (f"; n-gram draft acceptance {base['draft_acceptance']:.2f}" if base.get("draft_acceptance") is not None
                 else "") + ".", "",
-             "| trials at a time (N) | trials | queries | wall (s) | s a query, each trial | queries an hour | "
-             "trials an hour (100 queries, extrapolated) | x N=1 | replies identical to N=1 | first differing query, per trial "
-             "| mean abs action difference, same prompt |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| trials at a time (N) | draft | trials | queries | wall (s) | s a query, each trial | queries an hour | "
+             "trials an hour (100 queries, extrapolated) | x first row | replies identical to the first row | first "
+             "differing query, per trial | mean abs action difference, same prompt |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for row in result["levels"]:
         same = "-" if row["identical_to_first"] is None else f"{row['identical_to_first']:.2f}"
         parted = ", ".join("none" if i is None else str(i) for i in row["first_difference"])
         diff = "-" if row["action_diff_same_prompt"] is None else f"{row['action_diff_same_prompt']:.3f}"
-        lines.append(f"| {row['n']} | {row['trials']} | {row['queries']} | {row['wall_s']:.0f} | "
+        lines.append(f"| {row['n']} | {row['draft']} | {row['trials']} | {row['queries']} | {row['wall_s']:.0f} | "
                      f"{row['latency_mean_s']:.2f} | {row['queries_per_hour']:.0f} | {row['trials_per_hour']:.2f} | "
                      f"{row['speedup']:.2f} | {same} | {parted} | {diff} |")
     return "\n".join(lines)

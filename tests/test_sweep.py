@@ -371,3 +371,20 @@ def test_an_experiment_naming_an_unassembled_model_lists_dry_runs_and_asks_for_i
     assert run.returncode == 2 and run.stderr.count("\n") == 1, run.stderr
     assert "bench models --assemble qwen2.5-coder-1.5b" in run.stderr
     assert not (tmp_path / "store" / "rows").exists() or not any((tmp_path / "store" / "rows").iterdir())
+
+
+def test_a_trial_whose_seed_phase_falls_is_counted_apart(tmp_path):
+    """MuJoCo A1 rough, seed 55: the seed policy falls at 2.3 s, before the takeover at 10 s, so the controller under
+    test never acts; seed 50 walks. The report counts the fall apart and measures the controller on seed 50 alone."""
+    path = tmp_path / "early.toml"
+    path.write_text('name = "early"\nseeds = [50, 55]\n[fixed]\nsim = "mujoco"\nrobot = "a1"\nterrain = "rough"\n'
+                    'duration = 12.0\nllm_after = 10.0\nseed_start = 1.0\nprompt_strategy = "nearest-only"\n'
+                    '[grid]\ncontroller = ["oracle"]\n[variants.controller]\noracle = { policy = "llm", model = "oracle" }\n')
+    run_sweep(load_experiment(str(path)).trials(), ResultStore(tmp_path / "store"), workers=1)
+    frame = load_results(tmp_path / "store")
+    assert sorted(frame["fall_time"].fillna(99.0).round(1)) == [2.3, 99.0]  # the seed phase of seed 55 fell
+    row = summary_table(frame, spread=False).iloc[0]
+    assert row["trials"] == 1 and row["fell before takeover (apart)"] == 1
+    assert row["success rate"] == 1.0 and row["NWT"] == 1.0  # not 0.5: the fall is not the controller's
+    write_reports(frame, tmp_path / "reports")
+    assert "fell before takeover (apart)" in (tmp_path / "reports" / "early.md").read_text()

@@ -98,18 +98,33 @@ def repeated_targets(row: pd.Series) -> float:
     return float(np.all(np.diff(phase, axis=0) == 0.0, axis=1).mean())
 
 
+def fell_before_takeover(frame: pd.DataFrame) -> pd.Series:
+    """Trials whose seed phase fell before the evaluated phase began: the controller under test never acted,
+    so they say nothing about it (their NWT is 0 for every controller) and are counted apart."""
+    if "fall_time" not in frame or "eval_start" not in frame:
+        return pd.Series(False, index=frame.index)
+    start = frame["eval_start"].astype(float)
+    return (frame["fall_time"].notna() & (start > 0) & (frame["fall_time"].astype(float) <= start + 1e-9)).astype(bool)
+
+
 def summary_table(frame: pd.DataFrame, spread: bool = True) -> pd.DataFrame:
     """One row per cell: trial count and the mean (or sum) of every metric present; with `spread`,
-    rates carry their 95% Wilson interval and NWT, speed and distance their standard deviation."""
-    frame = frame.assign(abs_drift_m=frame["lateral_drift_m"].abs())
+    rates carry their 95% Wilson interval and NWT, speed and distance their standard deviation.
+    Trials that fell before the takeover are left out of `trials` and every metric, and counted in a
+    column of their own (present when any did)."""
+    early = fell_before_takeover(frame)
+    frame = frame.assign(abs_drift_m=frame["lateral_drift_m"].abs(), counted=~early, early=early)
     if "traj_joint_target" in frame:
         frame = frame.assign(repeated_targets=frame.apply(repeated_targets, axis=1))
     if "heading_change_rad" in frame:
         frame = frame.assign(abs_heading_change_rad=frame["heading_change_rad"].abs())
     axes = axes_of(frame)
     present = {k: v for k, v in METRICS.items() if k in frame and frame[k].notna().any()}
+    if early.any():  # blank what they measured: means and sums skip NaN
+        frame = frame.astype({k: float for k in present if frame[k].dtype == bool})
+        frame.loc[early, list(present)] = np.nan
     grouped = _with_axis_text(frame, axes).groupby(axes, sort=False)
-    table = grouped.agg(trials=("trial_id", "count"),
+    table = grouped.agg(trials=("counted", "sum"), **({"fell_before_takeover": ("early", "sum")} if early.any() else {}),
                         **{k: (k, AGGREGATIONS[agg]) for k, (_, agg, _) in present.items() if agg != "live"})
     if "latency_mean_s" in present:
         weights = [c for c in ("latency_mean_s", "queries", "cache_hits") if c in frame]
@@ -120,7 +135,8 @@ def summary_table(frame: pd.DataFrame, spread: bool = True) -> pd.DataFrame:
         for key in [k for k in (*INTERVALS, *SPREAD) if k in present]:
             digits = present[key][2]
             table[key] = grouped[key].apply(lambda v, k=key, d=digits: _with_spread(v, k, d))
-    return table.rename(columns={k: heading for k, (heading, _, _) in present.items()}).reset_index()
+    table = table.rename(columns={k: heading for k, (heading, _, _) in present.items()})
+    return table.rename(columns={"fell_before_takeover": EARLY}).reset_index()
 
 
 def engine_table(frame: pd.DataFrame) -> pd.DataFrame | None:
@@ -136,12 +152,13 @@ def engine_table(frame: pd.DataFrame) -> pd.DataFrame | None:
     return wide[order].fillna("-").reset_index()
 
 
-HEADLINE = ("trials", "NWT", "success rate", "distance (m)")
+EARLY = "fell before takeover (apart)"
+HEADLINE = ("trials", EARLY, "NWT", "success rate", "distance (m)")
 
 
 def headline_table(table: pd.DataFrame) -> pd.DataFrame:
     """The few columns that answer the question: the grid axes, then trials, NWT, success and distance."""
-    metric_headings = {heading for heading, _, _ in METRICS.values()} | {"trials"}
+    metric_headings = {heading for heading, _, _ in METRICS.values()} | {"trials", EARLY}
     axes = [c for c in table.columns if c not in metric_headings]
     return table[[*axes, *[c for c in HEADLINE if c in table.columns]]]
 

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from benchmark.common.settings import SettingError, build, check, coerce, hints, setting
+from benchmark.trial.disturbances import DISTURBANCES
 from benchmark.trial.registry import POLICIES, available_policies, policy_entry
 from robots import load_robot
 from sims import available_sims, engine, engine_options, load_entry_point, option_fields
@@ -35,6 +36,9 @@ class CellSpec:
                                         "(which the LLM never sees); off: the paper's protocol, the command fixed at "
                                         "the robot's (vx 1 m/s) throughout, so every example in a prompt is a "
                                         "function of what the prompt shows")
+    disturbance: str = setting("none", "what happens after the takeover that the demonstrations never showed "
+                                       "(weak_motors, weaker_motors, shoves; benchmark.trial.disturbances)",
+                               choices=lambda: list(DISTURBANCES), added_later=True)
     engine: tuple[tuple[str, Any], ...] = ()  # the engine's own options, as (name, value) pairs
     settings: Any = None  # the policy's settings dataclass (None: the policy has none)
 
@@ -67,8 +71,9 @@ class CellSpec:
     def id_params(self) -> dict:
         """`params` as trial ids read them: a policy setting added after results were stored is left out at its
         default, so a store made before it keeps its ids (nothing reruns)."""
-        later = {f.name: f.default for f in dataclasses.fields(self.settings) if f.metadata.get("added_later")} \
-            if self.settings is not None else {}
+        later = {f.name: f.default for f in dataclasses.fields(self) if f.metadata.get("added_later")}
+        if self.settings is not None:
+            later.update({f.name: f.default for f in dataclasses.fields(self.settings) if f.metadata.get("added_later")})
         return {k: v for k, v in self.params().items() if not (k in later and v == later[k])}
 
     def label(self) -> str:

@@ -21,6 +21,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from benchmark.trial.control import FIXED_COMMAND, ControlLoop, HeadingHold, yaw_of
+from benchmark.trial.disturbances import NO_DISTURBANCE, Disturbance
 from benchmark.trial.policy import Policy
 from robots import Robot
 from sims.base import Simulator
@@ -32,6 +33,7 @@ class EpisodeConfig:
     duration: float = 10.0  # s of simulated time
     eval_start: float = 0.0  # s; metrics cover [eval_start, duration]
     heading_hold: bool = False  # steer through the yaw-rate command (benchmark.trial.control.HeadingHold); off: fixed command
+    disturbance: Disturbance = NO_DISTURBANCE  # shoves or changed dynamics after eval_start
 
     def __post_init__(self) -> None:
         if not self.duration > 0:
@@ -131,6 +133,7 @@ def run_trial(sim: Simulator, robot: Robot, terrain: Terrain, policy: Policy, co
     loop = ControlLoop(sim, robot, terrain, heading=HeadingHold() if config.heading_hold else FIXED_COMMAND)
     steps = int(round(config.duration / loop.dt))
     eval_step = int(round(config.eval_start / loop.dt))
+    config.disturbance.start(sim)
     loop.reset(seed)
     policy.reset(seed)
     eval_origin = loop.state.base_pos.copy()
@@ -140,6 +143,7 @@ def run_trial(sim: Simulator, robot: Robot, terrain: Terrain, policy: Policy, co
     fall_time, last = None, loop.state
     for _ in range(steps):
         loop.step(policy.act(loop.obs, loop.state))
+        config.disturbance.apply(sim, loop.time - config.eval_start, loop.dt)
         state = loop.state
         if on_step is not None:
             on_step(loop)

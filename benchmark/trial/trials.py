@@ -9,6 +9,7 @@ from __future__ import annotations
 from collections.abc import Iterable, Sequence
 
 from benchmark.trial.cell import CellSpec
+from benchmark.trial.disturbances import DISTURBANCES
 from benchmark.trial.policy import Policy, build_policy
 from benchmark.trial.resources import Resources
 from benchmark.trial.runner import EpisodeConfig, StepCallback, TrialResult, run_trial
@@ -45,7 +46,8 @@ def run_cell(cell: CellSpec, seeds: Iterable[int], resources: Resources | None =
         terrain = Terrain(cell.terrain, seed=cell.terrain_seed)
         sim = resources.sim(cell, robot, terrain)
         policy = build_policy(cell, robot, resources)
-        episode = EpisodeConfig(duration=cell.duration, eval_start=cell.eval_start, heading_hold=cell.heading_hold)
+        episode = EpisodeConfig(duration=cell.duration, eval_start=cell.eval_start, heading_hold=cell.heading_hold,
+                                disturbance=DISTURBANCES[cell.disturbance])
         results = []
         try:
             for seed in seeds:

@@ -1,0 +1,52 @@
+"""Disturbances after the takeover: applied on schedule in every engine, and the hard-track condition defeats
+copying the demonstrations while the seed policy's own action walks through it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from benchmark.trial.cell import make_cell
+from benchmark.trial.disturbances import DISTURBANCES
+from benchmark.trial.trials import TrialHooks, run_cell
+
+ENGINES = ["mujoco", "pybullet", pytest.param("newton", marks=pytest.mark.slow)]
+
+
+class LateralSpeed(TrialHooks):
+    """The base's world-frame sideways speed after every control step."""
+
+    def start(self, seed, sim, policy, episode):
+        self.vy = []
+        return lambda loop: self.vy.append(float(loop.state.base_lin_vel[1]))
+
+
+def test_shoves_land_on_schedule_after_the_takeover():
+    """MuJoCo, the seed policy from a 1 s takeover: the base's sideways speed jumps by about the shove at 1 s + 2 s,
+    and an undisturbed trial of the same seed shows no such jump."""
+    speeds = {}
+    for name in ("none", "shoves"):
+        cell = make_cell({"sim": "mujoco", "policy": "llm", "model": "oracle", "duration": 4.0, "llm_after": 1.0,
+                          "seed_start": 0.5, "disturbance": name})
+        watch = LateralSpeed()
+        run_cell(cell, [0], hooks=[watch])
+        speeds[name] = np.array(watch.vy)
+    jump = speeds["shoves"] - speeds["none"]
+    at = int(round((1.0 + DISTURBANCES["shoves"].shoves[0][0]) / 0.1)) - 1  # the step the shove follows
+    assert np.allclose(jump[:at], 0.0) and jump[at + 1] > 0.5  # identical before, then shoved left
+
+
+@pytest.mark.parametrize("sim", ENGINES)
+def test_weak_motors_defeat_copying_while_the_seed_policy_walks(sim):
+    """A1 flat on `nearest-only`, seed 0: with 60% of the motors' torque from the takeover, `oracle` (the seed policy
+    through the text channel) walks on, while `knn` and `hold`, copying targets shown for full-strength motors, do
+    not; undisturbed, `knn` walks (measured over 10 seeds in MuJoCo and PyBullet: oracle 10/10, knn 0/10, hold 0/10;
+    Newton, 3 seeds: 3/3, 0/3, 0/3)."""
+    def success(model: str, disturbance: str) -> bool:
+        cell = make_cell({"sim": sim, "robot": "a1", "policy": "llm", "model": model,
+                          "prompt_strategy": "nearest-only", "disturbance": disturbance})
+        return bool(run_cell(cell, [0])[0].success)
+
+    assert success("oracle", "weak_motors")
+    assert not success("knn", "weak_motors") and not success("hold", "weak_motors")
+    assert success("knn", "none")

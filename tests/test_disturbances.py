@@ -50,3 +50,27 @@ def test_weak_motors_defeat_copying_while_the_seed_policy_walks(sim):
     assert success("oracle", "weak_motors")
     assert not success("knn", "weak_motors") and not success("hold", "weak_motors")
     assert success("knn", "none")
+
+
+def test_the_matrix_report_names_a_hard_track_cell_and_pairs_gains_over_seeds(tmp_path):
+    """A tiny matrix in MuJoCo (A1 flat, undisturbed and with weak motors, 2 seeds, the paper's takeover at 10 s, 5 s
+    after it): the report draws the matrix, marks the paper's cell, puts weak motors on the hard track (oracle walks, knn and hold do not)
+    and leaves the undisturbed cell off it (knn walks)."""
+    from benchmark.common.store import ResultStore, load_results
+    from benchmark.experiments.experiment import load_experiment
+    from benchmark.experiments.report import write_reports
+    from benchmark.experiments.sweep import run_sweep
+
+    path = tmp_path / "tiny_matrix.toml"
+    path.write_text('name = "tiny_matrix"\nseeds = 2\n[fixed]\nduration = 15.0\nllm_after = 10.0\nseed_start = 1.0\n'
+                    'prompt_strategy = "nearest-only"\n[grid]\nsim = ["mujoco"]\nrobot = ["a1"]\nterrain = ["flat"]\n'
+                    'disturbance = ["none", "weak_motors"]\ncontroller = ["oracle", "knn_nearest_only", "hold_nearest_only"]\n'
+                    '[variants.controller]\noracle = { policy = "llm", model = "oracle" }\n'
+                    'knn_nearest_only = { policy = "llm", model = "knn" }\nhold_nearest_only = { policy = "llm", model = "hold" }\n')
+    run_sweep(load_experiment(str(path)).trials(), ResultStore(tmp_path / "store"), workers=1)
+    write_reports(load_results(tmp_path / "store"), tmp_path / "reports")
+    text = (tmp_path / "reports" / "tiny_matrix.md").read_text()
+    assert (tmp_path / "reports" / "figures" / "tiny_matrix_matrix.png").stat().st_size > 10_000
+    hard = next(line for line in text.splitlines() if line.startswith("**The hard track**"))
+    assert "mujoco/a1/flat/weak_motors" in hard and "mujoco/a1/flat *" not in hard
+    assert "| mujoco/a1/flat * | 0 | 2/2" in text  # the paper's cell, marked; no fall before the takeover

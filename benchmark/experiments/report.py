@@ -359,8 +359,12 @@ def write_reports(frame: pd.DataFrame, out: Path, fmt: str = "md", force: bool =
         figures = [p for p in (bars, traj) if p is not None]
         extra, extra_figures = latency_section(group, out, str(name))
         diagnostics, diagnostic_figures = diagnostics_section(group, out, str(name), _row_label(group))
-        extra = extra + realtime_section(group) + study_section(group, probes, planned_llm_cells(str(name))) + probe_lines + diagnostics
-        figures += extra_figures + probe_figures + diagnostic_figures
+        from benchmark.experiments.report_matrix import matrix_section
+
+        matrix, matrix_figures = matrix_section(group, out, str(name), title)
+        extra = (extra + realtime_section(group) + matrix + study_section(group, probes, planned_llm_cells(str(name)))
+                 + probe_lines + diagnostics)
+        figures += extra_figures + matrix_figures + probe_figures + diagnostic_figures
         if fmt == "csv":
             table.to_csv(path, index=False)
         elif fmt == "html":

@@ -1,0 +1,161 @@
+"""The cell matrix: where a model walks, where copying its prompt walks, and where only a model could.
+
+For an experiment whose grid crosses cells (engine, robot, terrain, disturbance) with controllers that include
+the seed policy's action through the text channel (`oracle`) and the walking prompt's trivial answers
+(`knn_nearest_only`, `hold_nearest_only`): a figure of success per cell and controller with Wilson intervals,
+a table per cell with each language model's closed-loop gain over the better trivial answer (success paired
+over the same seeds, bootstrap 95% interval) and its speed, and the hard track: the cells where `oracle` walks
+(success >= 0.9) and both trivial answers fail (< 0.6). Trials whose seed phase fell before the takeover are
+left out of every rate here and counted apart.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from benchmark.common.figures import save_figure
+from benchmark.common.tables import live_latency_mean, to_markdown, wilson
+from benchmark.experiments.report import fell_before_takeover
+
+CEILING, TRIVIAL = "oracle", ("knn_nearest_only", "hold_nearest_only")
+CELL_AXES = ("sim", "robot", "terrain", "disturbance")
+PAPER_CELLS = {("a1", "flat"), ("a1", "rough"), ("anymal", "flat")}  # where the paper walked a robot with GPT-4
+HARD_ORACLE, HARD_TRIVIAL = 0.9, 0.6
+BOOTSTRAP = 2000
+
+
+def applies(group: pd.DataFrame) -> bool:
+    controllers = set(group.get("controller", pd.Series(dtype=str)).dropna())
+    return CEILING in controllers and bool(controllers & set(TRIVIAL)) and {"sim", "robot", "terrain"} <= set(group)
+
+
+def _cell_axes(group: pd.DataFrame) -> list[str]:
+    return [a for a in CELL_AXES if a in group and group[a].nunique(dropna=False) > 0]
+
+
+def cell_label(key: tuple, axes: list[str]) -> str:
+    values = dict(zip(axes, key))
+    paper = (values.get("robot"), values.get("terrain")) in PAPER_CELLS and values.get("disturbance", "none") == "none"
+    return "/".join(str(values[a]) for a in axes if not (a == "disturbance" and values[a] == "none")) + (" *" if paper else "")
+
+
+def _success_by_seed(trials: pd.DataFrame) -> pd.Series:
+    return trials.set_index("seed")["success"].astype(float)
+
+
+def paired_gain(model: pd.DataFrame, trivial: pd.DataFrame, rng: np.random.Generator) -> tuple[float, float, float, int]:
+    """Mean success difference over the seeds both ran, with a bootstrap 95% interval, and the seed count."""
+    a, b = _success_by_seed(model), _success_by_seed(trivial)
+    seeds = a.index.intersection(b.index)
+    if seeds.empty:
+        return float("nan"), float("nan"), float("nan"), 0
+    d = (a[seeds] - b[seeds]).to_numpy()
+    means = rng.choice(d, size=(BOOTSTRAP, len(d))).mean(axis=1)
+    return float(d.mean()), float(np.quantile(means, 0.025)), float(np.quantile(means, 0.975)), len(d)
+
+
+def cell_rows(group: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
+    """One row per (cell, controller): counted trials, successes, fell before takeover, speed."""
+    axes = _cell_axes(group)
+    group = group.assign(early=fell_before_takeover(group))
+    rows = []
+    for key, cell in group.groupby(axes, sort=False, dropna=False):
+        key = key if isinstance(key, tuple) else (key,)
+        for controller, trials in cell.groupby("controller", sort=False):
+            counted = trials[~trials["early"]]
+            rows.append({"cell": cell_label(key, axes), "controller": controller, "n": len(counted),
+                         "successes": int(counted["success"].sum()), "early": int(trials["early"].sum()),
+                         "s_query": live_latency_mean(counted) if "latency_mean_s" in counted else float("nan"),
+                         "trial_s": float(counted["trial_wall_s"].median()) if "trial_wall_s" in counted and len(counted) else float("nan"),
+                         "model": trials["model"].iloc[0] if "model" in trials else None, "trials": counted})
+    return pd.DataFrame(rows), axes
+
+
+def _rate(successes: int, n: int) -> str:
+    if n == 0:
+        return "-"
+    low, high = wilson(successes, n)
+    return f"{successes}/{n} ({successes / n:.2f} [{low:.2f}, {high:.2f}])"
+
+
+def matrix_figure(rows: pd.DataFrame, path: Path, title: str) -> Path:
+    """Success per cell (rows) and controller (columns): colour the rate, text k/n and the Wilson interval."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cells = list(dict.fromkeys(rows["cell"]))
+    controllers = list(dict.fromkeys(rows["controller"]))
+    rate = np.full((len(cells), len(controllers)), np.nan)
+    fig, ax = plt.subplots(figsize=(1.45 * len(controllers) + 2.5, 0.42 * len(cells) + 1.6))
+    for _, r in rows.iterrows():
+        i, j = cells.index(r["cell"]), controllers.index(r["controller"])
+        if r["n"]:
+            rate[i, j] = r["successes"] / r["n"]
+            low, high = wilson(r["successes"], r["n"])
+            text = f"{r['successes']}/{r['n']}\n[{low:.2f}, {high:.2f}]"
+        else:
+            text = "-"
+        if r["early"]:
+            text += f" +{r['early']}e"
+        ax.text(j, i, text, ha="center", va="center", fontsize=6.5,
+                color="black" if np.isnan(rate[i, j]) or 0.25 < rate[i, j] < 0.85 else "white")
+    ax.imshow(np.ma.masked_invalid(rate), cmap="viridis", vmin=0, vmax=1, aspect="auto")
+    ax.set_xticks(range(len(controllers)), [c.replace("_", "\n", 1) for c in controllers], fontsize=7)
+    ax.set_yticks(range(len(cells)), cells, fontsize=7)
+    ax.set_title(f"{title}\nsuccess k/n [Wilson 95%]; +Ne: trials whose seed phase fell before the takeover (apart); "
+                 "* the paper's cells", fontsize=8)
+    return save_figure(fig, path)
+
+
+def matrix_section(group: pd.DataFrame, out: Path, name: str, title: str) -> tuple[list[str], list[Path]]:
+    """The figure, the per-cell table with each model's paired gain and speed, and the hard track."""
+    if not applies(group):
+        return [], []
+    rows, _ = cell_rows(group)
+    figure = matrix_figure(rows, out / "figures" / f"{name}_matrix.png", title)
+    rng = np.random.default_rng(0)
+    models = [c for c in dict.fromkeys(rows["controller"]) if rows.loc[rows["controller"] == c, "model"].iloc[0]
+              not in (None, "oracle", "knn", "hold", "replay") and not pd.isna(rows.loc[rows["controller"] == c, "model"].iloc[0])]
+    table, hard = [], []
+    for cell, r in rows.groupby("cell", sort=False):
+        by = r.set_index("controller")
+        oracle = by.loc[CEILING] if CEILING in by.index else None
+        trivial = [by.loc[t] for t in TRIVIAL if t in by.index and by.loc[t, "n"]]
+        best = max(trivial, key=lambda t: t["successes"] / t["n"]) if trivial else None
+        entry = {"cell": cell, "fell before takeover (apart)": int(r["early"].max()),
+                 "oracle": _rate(oracle["successes"], oracle["n"]) if oracle is not None else "-",
+                 "best trivial answer": f"{best.name}: {_rate(best['successes'], best['n'])}" if best is not None else "-"}
+        is_hard = (oracle is not None and oracle["n"] and oracle["successes"] / oracle["n"] >= HARD_ORACLE and trivial
+                   and all(t["successes"] / t["n"] < HARD_TRIVIAL for t in trivial))
+        entry["hard track"] = "yes" if is_hard else ""
+        if is_hard:
+            hard.append(cell)
+        for model in models:
+            if model not in by.index or not by.loc[model, "n"]:
+                entry[model] = "not run"
+                continue
+            m = by.loc[model]
+            text = _rate(m["successes"], m["n"])
+            if best is not None:
+                gain, low, high, n = paired_gain(m["trials"], best["trials"], rng)
+                text += f"; gain {gain:+.2f} [{low:+.2f}, {high:+.2f}] over {n} seeds"
+            if not np.isnan(m["s_query"]):
+                text += f"; {m['s_query']:.1f} s a query, {3600 / m['trial_s']:.1f} trials an hour"
+            entry[model] = text
+        table.append(entry)
+    lines = ["", "## The cell matrix", "",
+             f"![success per cell and controller](figures/{figure.name})", "",
+             "Success counts only trials whose seed phase reached the takeover; those that fell before it are counted "
+             "apart (the controller under test never acted). The gain is each model's success minus the better of the "
+             "walking prompt's trivial answers (`knn`, `hold` on nearest-only), paired over the seeds both ran, with a "
+             "bootstrap 95% interval. Speed: seconds a query (live queries) and trials an hour (median trial). "
+             "`*` marks the paper's cells (A1 flat and rough, ANYmal flat). A model row that says `not run` is a "
+             "partial store's gap, not a result.", "", to_markdown(pd.DataFrame(table)), "",
+             "**The hard track** (oracle success >= 0.9, both trivial answers < 0.6): "
+             + (", ".join(hard) if hard else "no cell yet") + ".", ""]
+    return lines, [figure]

@@ -74,3 +74,8 @@ def test_the_matrix_report_names_a_hard_track_cell_and_pairs_gains_over_seeds(tm
     hard = next(line for line in text.splitlines() if line.startswith("**The hard track**"))
     assert "mujoco/a1/flat/weak_motors" in hard and "mujoco/a1/flat *" not in hard
     assert "| mujoco/a1/flat * | 0 | 2/2" in text  # the paper's cell, marked; no fall before the takeover
+    from benchmark.experiments.report_matrix import closed_loop_view
+
+    view = "\n".join(closed_loop_view([tmp_path / "store", tmp_path / "absent"]))  # the leaderboard's per-cell view
+    assert "| controller | mujoco/a1/flat * | mujoco/a1/flat/weak_motors |" in view
+    assert "| oracle | 2/2 | 2/2 |" in view and "| knn_nearest_only | 2/2 | 0/2 |" in view

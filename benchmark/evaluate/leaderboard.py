@@ -225,10 +225,15 @@ def seed_policy_lines(rows: list[dict], store: Path) -> list[str]:
     return [" ".join(lines), ""] if lines else []
 
 
+CELL_STORES = ("reports/data/matrix", "reports/data/hard_track")  # the per-cell closed-loop view's stores
+
+
 def write_leaderboard(store: Path | str = DEFAULT_STORE, out: Path | str = "reports",
-                      command: str = "bench leaderboard") -> tuple[Path, Path | None]:
-    """`OUT/leaderboard.md` and, when there are rows, the self-contained `OUT/leaderboard.html`."""
+                      command: str = "bench leaderboard", cell_stores: tuple[str, ...] = CELL_STORES) -> tuple[Path, Path | None]:
+    """`OUT/leaderboard.md` and, when there are rows, the self-contained `OUT/leaderboard.html`; the matrix and
+    hard-track stores, where they exist, add a per-cell closed-loop view."""
     from benchmark.evaluate.leaderboard_html import render
+    from benchmark.experiments.report_matrix import closed_loop_view
 
     rows = load_rows(store)
     out = Path(out)
@@ -271,6 +276,7 @@ def write_leaderboard(store: Path | str = DEFAULT_STORE, out: Path | str = "repo
         if figure is not None:
             lines += ["## Probe skill against closed-loop NWT", "", correlation_text(shown), "",
                       f"![probe vs closed loop](figures/{figure.name})", ""]
+        lines += closed_loop_view(list(cell_stores))
         made = sorted({(r["fingerprint_id"], r["fingerprint"]["cpu"]) for r in rows})
         lines += ["Made on: " + "; ".join(f"`{f}` {cpu}" for f, cpu in made) + ".", "",
                   "Commands:", "", *[f"    {r['command']}" for r in rows], ""]

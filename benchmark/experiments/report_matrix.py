@@ -159,3 +159,26 @@ def matrix_section(group: pd.DataFrame, out: Path, name: str, title: str) -> tup
              "**The hard track** (oracle success >= 0.9, both trivial answers < 0.6): "
              + (", ".join(hard) if hard else "no cell yet") + ".", ""]
     return lines, [figure]
+
+
+def closed_loop_view(stores: list[Path]) -> list[str]:
+    """The leaderboard's per-cell closed-loop view: controllers as rows, cells as columns, success k/n (trials whose
+    seed phase fell before the takeover left out), from the matrix and hard-track stores that exist."""
+    from benchmark.common.store import load_results
+
+    lines = []
+    for store in [Path(s) for s in stores if Path(s).is_dir() and any(Path(s).glob("trials/*"))]:
+        group = load_results(store)
+        group = group.sort_values(["cell_index", "seed"])
+        if not applies(group):
+            continue
+        rows, _ = cell_rows(group)
+        rows = rows.assign(text=[f"{r.successes}/{r.n}" if r.n else "-" for r in rows.itertuples()])
+        pivot = rows.pivot(index="controller", columns="cell", values="text").reindex(
+            index=list(dict.fromkeys(rows["controller"])), columns=list(dict.fromkeys(rows["cell"]))).fillna("not run")
+        name = group["experiment"].iloc[0]
+        lines += [f"## Closed loop per cell: `{name}`", "",
+                  f"Success k/n per cell (`bench sweep {name}`, report: [{name}.md]({name}.md)); trials whose seed phase "
+                  "fell before the takeover are left out; `*` marks the paper's cells; `not run` is a partial store's "
+                  "gap.", "", to_markdown(pivot.reset_index()), ""]
+    return lines

@@ -79,3 +79,30 @@ def test_the_matrix_report_names_a_hard_track_cell_and_pairs_gains_over_seeds(tm
     view = "\n".join(closed_loop_view([tmp_path / "store", tmp_path / "absent"]))  # the leaderboard's per-cell view
     assert "| controller | mujoco/a1/flat * | mujoco/a1/flat/weak_motors |" in view
     assert "| oracle | 2/2 | 2/2 |" in view and "| knn_nearest_only | 2/2 | 0/2 |" in view
+
+
+def _matrix_cells() -> list:
+    """Every (engine, robot, terrain, disturbance) cell of the shipped matrix and hard-track experiments, once."""
+    from benchmark.experiments.experiment import load_experiment
+
+    cells = {}
+    for name in ("matrix", "hard_track"):
+        for trial in load_experiment(name).trials(only={"controller": "knn_nearest_only"}):
+            c = trial.cell
+            key = (c.sim, c.robot, c.terrain, c.disturbance)
+            marks = [pytest.mark.slow] if c.sim == "newton" else []
+            cells.setdefault(key, pytest.param(c, id="/".join(key), marks=marks))
+    return list(cells.values())
+
+
+@pytest.mark.parametrize("cell", _matrix_cells())
+def test_every_matrix_cell_loads_and_runs_a_reference_trial(cell):
+    """Each cell's `knn` row, shortened to 2 s of the model after a 2 s seed phase: it runs, answers every step from
+    its prompt and records the cell's disturbance."""
+    import dataclasses
+
+    settings = dataclasses.replace(cell.settings, llm_after=2.0, seed_start=0.5)
+    short = dataclasses.replace(cell, duration=4.0, settings=settings)
+    result = run_cell(short, [0])[0]
+    assert result.control_steps > 0 and result.policy_metrics["parse_failures"] == 0
+    assert short.params()["disturbance"] in DISTURBANCES

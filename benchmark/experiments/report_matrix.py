@@ -103,7 +103,10 @@ def matrix_figure(rows: pd.DataFrame, path: Path, title: str) -> Path:
         if r["early"]:
             text += f" +{r['early']}e"
         ax.text(j, i, text, ha="center", va="center", fontsize=6.5,
-                color="black" if np.isnan(rate[i, j]) or 0.25 < rate[i, j] < 0.85 else "white")
+                color="black" if np.isnan(rate[i, j]) or rate[i, j] >= 0.5 else "white")  # viridis: dark below 0.5
+    for i, j in np.argwhere(np.isnan(rate)):
+        if not ((rows["cell"] == cells[i]) & (rows["controller"] == controllers[j])).any():
+            ax.text(j, i, "not run", ha="center", va="center", fontsize=6.5, color="grey")
     ax.imshow(np.ma.masked_invalid(rate), cmap="viridis", vmin=0, vmax=1, aspect="auto")
     ax.set_xticks(range(len(controllers)), [c.replace("_", "\n", 1) for c in controllers], fontsize=7)
     ax.set_yticks(range(len(cells)), cells, fontsize=7)

@@ -56,6 +56,12 @@ ADAPT: dict[str, tuple[list[str], dict[str, str]] | str] = {
     "bench run --sim gazebo": "an example of a mistake: exit code 2 is checked in test_mistakes.py",
     "bench report results/cross_engine --format html": (["--out", "html"], {"results/cross_engine": str(STORE)}),
     "bench sweep --list": ([], {}),
+    "bench sweep matrix --workers 2 --only controller=oracle": (["--dry-run"], {}),
+    "bench sweep hard_track --workers 2 --only controller=knn_nearest_only": (["--dry-run"], {}),
+    "bench sweep matrix --only controller=qwen15_nearest_only --seeds 5": (["--dry-run"], {}),
+    "bench report reports/data/matrix": (["--out", "matrix"], {"reports/data/matrix": str(ROOT / "reports/data/matrix")}),
+    "bench report reports/data/hard_track": (["--out", "hard"], {"reports/data/hard_track": str(ROOT / "reports/data/hard_track")}),
+    "bench run --llm knn --prompt-strategy nearest-only --disturbance weak_motors": (["--trials", "1"], {}),
     "bench sweep cross_engine --only controller=rl --workers 2": (["--dry-run"], {}),
     "bench sweep history --executor ray --ray-address ray://head:10001": "needs a Ray cluster; test_sweep.py runs "
                                                                           "the ray executor on a local instance",

@@ -106,3 +106,22 @@ def test_every_matrix_cell_loads_and_runs_a_reference_trial(cell):
     result = run_cell(short, [0])[0]
     assert result.control_steps > 0 and result.policy_metrics["parse_failures"] == 0
     assert short.params()["disturbance"] in DISTURBANCES
+
+
+def test_an_engine_never_carries_one_cells_weak_motors_into_another_cell():
+    """One worker's resources run a weak-motors cell, then a shoved one, as a sweep does: the shoved trial equals the
+    same trial on fresh engines (a shared engine kept the weakened motors before engines were keyed by disturbance)."""
+    from benchmark.trial.resources import Resources
+
+    def cell(disturbance: str):
+        return make_cell({"sim": "mujoco", "robot": "a1", "policy": "llm", "model": "oracle", "duration": 14.0,
+                          "prompt_strategy": "nearest-only", "disturbance": disturbance})
+
+    shared = Resources()
+    try:
+        run_cell(cell("weaker_motors"), [0], shared)
+        after = run_cell(cell("shoves"), [0], shared)[0]
+    finally:
+        shared.close()
+    fresh = run_cell(cell("shoves"), [0])[0]
+    assert (after.fall_time, after.distance_m) == (fresh.fall_time, fresh.distance_m)

@@ -52,7 +52,9 @@ class Resources:
 
     @staticmethod
     def _sim_key(cell: CellSpec) -> tuple:
-        return cell.sim, cell.robot, cell.terrain, cell.terrain_seed, cell.engine
+        # a disturbance that changes dynamics leaves them changed until its next trial resets them: an engine is
+        # shared only by cells with the same disturbance, so an undisturbed or shoved cell never inherits weak motors
+        return cell.sim, cell.robot, cell.terrain, cell.terrain_seed, cell.engine, cell.disturbance
 
     def use_sim(self, cell: CellSpec, sim: Simulator) -> None:
         """Run `cell`'s trials in this engine instance (e.g. one wrapped to record every substep)."""

@@ -97,7 +97,7 @@ def test_malformed_experiment_files_are_one_clear_line(tmp_path, text, message):
 
 
 def test_bad_sweep_input_exits_2_with_one_line(tmp_path):
-    for args, message in [(["sweep", "nope"], "shipped experiments: cross_engine, description"),
+    for args, message in [(["sweep", "nope"], "shipped experiments: compact, cross_engine, description"),
                           (["sweep", str(TINY), "--set", "sim=gazebo", "--results", str(tmp_path)],
                            "unknown simulator 'gazebo'"),
                           (["sweep", str(TINY), "--set", "colour=red"], "--set: unknown setting 'colour'"),

@@ -1,5 +1,6 @@
-"""Small helpers every report uses: a pandas table as Markdown, the Wilson interval of a rate, and the mean
-seconds a query over trials that answered part of their queries from the reply cache."""
+"""Small helpers every report uses: a pandas table as Markdown, the Wilson interval of a rate, the mean
+seconds a query over trials that answered part of their queries from the reply cache, and which trials fell
+before the takeover."""
 
 from __future__ import annotations
 
@@ -42,3 +43,12 @@ def to_markdown(table: pd.DataFrame) -> str:
     rule = "|" + "|".join("---" for _ in table.columns) + "|"
     rows = ["| " + " | ".join(cell(v) for v in row) + " |" for row in table.itertuples(index=False)]
     return "\n".join([head, rule, *rows])
+
+
+def fell_before_takeover(frame: pd.DataFrame) -> pd.Series:
+    """Trials whose seed phase fell before the evaluated phase began: the controller under test never acted,
+    so they say nothing about it (their NWT is 0 for every controller) and are counted apart."""
+    if "fall_time" not in frame or "eval_start" not in frame:
+        return pd.Series(False, index=frame.index)
+    start = frame["eval_start"].astype(float)
+    return (frame["fall_time"].notna() & (start > 0) & (frame["fall_time"].astype(float) <= start + 1e-9)).astype(bool)

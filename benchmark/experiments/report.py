@@ -25,9 +25,10 @@ import pandas as pd
 
 from benchmark.common.figures import save_figure
 from benchmark.common.fingerprint import describe
-from benchmark.common.tables import live_latency_mean, to_markdown, wilson
+from benchmark.common.tables import fell_before_takeover, live_latency_mean, to_markdown, wilson
 from benchmark.experiments.experiment import ExperimentError, axes_of, load_experiment
 from benchmark.experiments.report_latency import latency_section, realtime_section
+from benchmark.experiments.report_matrix import matrix_section
 from benchmark.experiments.report_prompting import (diagnostics_section, probe_section, split_probe_rows, step_times,
                                                      study_section)
 from robots import load_robot
@@ -96,15 +97,6 @@ def repeated_targets(row: pd.Series) -> float:
     if len(phase) < 2:
         return float("nan")
     return float(np.all(np.diff(phase, axis=0) == 0.0, axis=1).mean())
-
-
-def fell_before_takeover(frame: pd.DataFrame) -> pd.Series:
-    """Trials whose seed phase fell before the evaluated phase began: the controller under test never acted,
-    so they say nothing about it (their NWT is 0 for every controller) and are counted apart."""
-    if "fall_time" not in frame or "eval_start" not in frame:
-        return pd.Series(False, index=frame.index)
-    start = frame["eval_start"].astype(float)
-    return (frame["fall_time"].notna() & (start > 0) & (frame["fall_time"].astype(float) <= start + 1e-9)).astype(bool)
 
 
 def summary_table(frame: pd.DataFrame, spread: bool = True) -> pd.DataFrame:
@@ -359,8 +351,6 @@ def write_reports(frame: pd.DataFrame, out: Path, fmt: str = "md", force: bool =
         figures = [p for p in (bars, traj) if p is not None]
         extra, extra_figures = latency_section(group, out, str(name))
         diagnostics, diagnostic_figures = diagnostics_section(group, out, str(name), _row_label(group))
-        from benchmark.experiments.report_matrix import matrix_section
-
         matrix, matrix_figures = matrix_section(group, out, str(name), title)
         extra = (extra + realtime_section(group) + matrix + study_section(group, probes, planned_llm_cells(str(name)))
                  + probe_lines + diagnostics)

@@ -17,8 +17,7 @@ import numpy as np
 import pandas as pd
 
 from benchmark.common.figures import save_figure
-from benchmark.common.tables import live_latency_mean, to_markdown, wilson
-from benchmark.experiments.report import fell_before_takeover
+from benchmark.common.tables import fell_before_takeover, live_latency_mean, to_markdown, wilson
 
 CEILING, TRIVIAL = "oracle", ("knn_nearest_only", "hold_nearest_only")
 CELL_AXES = ("sim", "robot", "terrain", "disturbance")

@@ -18,6 +18,7 @@ import pandas as pd
 
 from benchmark.common.figures import save_figure
 from benchmark.common.tables import fell_before_takeover, live_latency_mean, to_markdown, wilson
+from benchmark.llm.reference import REFERENCE_KINDS
 
 CEILING, TRIVIAL = "oracle", ("knn_nearest_only", "hold_nearest_only")
 CELL_AXES = ("sim", "robot", "terrain", "disturbance")
@@ -32,7 +33,7 @@ def applies(group: pd.DataFrame) -> bool:
 
 
 def _cell_axes(group: pd.DataFrame) -> list[str]:
-    return [a for a in CELL_AXES if a in group and group[a].nunique(dropna=False) > 0]
+    return [a for a in CELL_AXES if a in group]
 
 
 def cell_label(key: tuple, axes: list[str]) -> str:
@@ -56,7 +57,7 @@ def paired_gain(model: pd.DataFrame, trivial: pd.DataFrame, rng: np.random.Gener
     return float(d.mean()), float(np.quantile(means, 0.025)), float(np.quantile(means, 0.975)), len(d)
 
 
-def cell_rows(group: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
+def cell_rows(group: pd.DataFrame) -> pd.DataFrame:
     """One row per (cell, controller): counted trials, successes, fell before takeover, speed."""
     axes = _cell_axes(group)
     group = group.assign(early=fell_before_takeover(group))
@@ -70,7 +71,7 @@ def cell_rows(group: pd.DataFrame) -> tuple[pd.DataFrame, list[str]]:
                          "s_query": live_latency_mean(counted) if "latency_mean_s" in counted else float("nan"),
                          "trial_s": float(counted["trial_wall_s"].median()) if "trial_wall_s" in counted and len(counted) else float("nan"),
                          "model": trials["model"].iloc[0] if "model" in trials else None, "trials": counted})
-    return pd.DataFrame(rows), axes
+    return pd.DataFrame(rows)
 
 
 def _rate(successes: int, n: int) -> str:
@@ -118,11 +119,11 @@ def matrix_section(group: pd.DataFrame, out: Path, name: str, title: str) -> tup
     """The figure, the per-cell table with each model's paired gain and speed, and the hard track."""
     if not applies(group):
         return [], []
-    rows, _ = cell_rows(group)
+    rows = cell_rows(group)
     figure = matrix_figure(rows, out / "figures" / f"{name}_matrix.png", title)
     rng = np.random.default_rng(0)
-    models = [c for c in dict.fromkeys(rows["controller"]) if rows.loc[rows["controller"] == c, "model"].iloc[0]
-              not in (None, "oracle", "knn", "hold", "replay") and not pd.isna(rows.loc[rows["controller"] == c, "model"].iloc[0])]
+    model_of = rows.drop_duplicates("controller").set_index("controller")["model"]
+    models = [c for c, m in model_of.items() if isinstance(m, str) and m not in REFERENCE_KINDS]  # language models
     table, hard = [], []
     for cell, r in rows.groupby("cell", sort=False):
         by = r.set_index("controller")
@@ -174,7 +175,7 @@ def closed_loop_view(stores: list[Path]) -> list[str]:
         group = group.sort_values(["cell_index", "seed"])
         if not applies(group):
             continue
-        rows, _ = cell_rows(group)
+        rows = cell_rows(group)
         rows = rows.assign(text=[f"{r.successes}/{r.n}" if r.n else "-" for r in rows.itertuples()])
         pivot = rows.pivot(index="controller", columns="cell", values="text").reindex(
             index=list(dict.fromkeys(rows["controller"])), columns=list(dict.fromkeys(rows["cell"]))).fillna("not run")

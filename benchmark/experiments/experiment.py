@@ -240,6 +240,19 @@ def _probe_table(path: Path, probe: dict, variants: dict) -> dict:
 PAPER_METRICS = ("nwt", "success", "gpt4_input_tokens", "gpt4_output_tokens")
 
 
+def _findings(path: Path, findings, axis: str, values: set[str]) -> list[dict]:
+    """`paper.findings`: each {better, worse, says}, two values of the paper's axis and the claim in words."""
+    keys = ("better", "worse", "says")
+    if not isinstance(findings, list) or not all(isinstance(f, dict) and set(f) == set(keys) for f in findings):
+        raise ExperimentError(f"{path}: paper.findings must be a list of {{ better = ..., worse = ..., says = ... }}")
+    for f in findings:
+        stray = [str(f[k]) for k in ("better", "worse") if str(f[k]) not in values]
+        if stray:
+            raise ExperimentError(f"{path}: paper.findings names '{stray[0]}', not a grid.{axis} value "
+                                  f"({', '.join(sorted(values))})")
+    return [{k: str(f[k]) for k in keys} for f in findings]
+
+
 def _paper_figures(path: Path, paper: dict, grid: dict) -> dict:
     """The `[paper]` table checked: one grid axis, figures keyed by that axis's values (as text)."""
     if not paper:
@@ -251,6 +264,9 @@ def _paper_figures(path: Path, paper: dict, grid: dict) -> dict:
     out = {"axis": axis, "source": str(paper.get("source", "the paper"))}
     for key, figures in paper.items():
         if key in ("axis", "source"):
+            continue
+        if key == "findings":
+            out[key] = _findings(path, figures, axis, values)
             continue
         if key not in PAPER_METRICS or not isinstance(figures, dict):
             raise ExperimentError(f"{path}: paper.{key}: expected a table of figures for one of "

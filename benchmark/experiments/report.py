@@ -26,8 +26,9 @@ import pandas as pd
 from benchmark.common.figures import save_figure
 from benchmark.common.fingerprint import describe
 from benchmark.common.tables import fell_before_takeover, live_latency_mean, to_markdown, wilson
-from benchmark.experiments.experiment import ExperimentError, axes_of, load_experiment
+from benchmark.experiments.experiment import Experiment, ExperimentError, axes_of, load_experiment
 from benchmark.experiments.report_latency import latency_section, realtime_section
+from benchmark.experiments.report_ablation import ablation_section
 from benchmark.experiments.report_matrix import matrix_section
 from benchmark.experiments.report_prompting import (diagnostics_section, probe_section, split_probe_rows, step_times,
                                                      study_section)
@@ -159,10 +160,10 @@ def paper_table(frame: pd.DataFrame, paper: dict) -> pd.DataFrame | None:
     """The paper's figures per value of its axis, beside this store's: success / NWT of each LLM
     controller, and the GPT-4 token counts of this store's prompts (cl100k)."""
     axis = paper.get("axis")
-    if not axis or axis not in frame:
-        return None
     names = {"nwt": "NWT", "success": "success", "gpt4_input_tokens": "GPT-4 input tokens",
              "gpt4_output_tokens": "GPT-4 output tokens"}
+    if not axis or axis not in frame or not any(m in paper for m in names):  # findings alone: nothing to print here
+        return None
     llm = frame[frame["policy"] == "llm"]
     if "cell_index" in llm:  # grid order, not the store's file order (trial ids are hashes)
         llm = llm.sort_values(["cell_index", "seed"], kind="stable")
@@ -278,14 +279,31 @@ class StoreContext:
     commands: list[str]
     paper: dict
     partial: str = ""
+    experiment: Experiment | None = None  # None: not a shipped experiment, nor a file a stored command names
+
+
+def _experiment_of(name: str, commands: list[str]):
+    """The experiment `name`: a shipped one, else the `.toml` file a stored sweep command ran (a user's own grid),
+    when it still exists and carries that name; None when neither is found."""
+    try:
+        return load_experiment(name)
+    except ExperimentError:
+        pass
+    for path in dict.fromkeys(w for c in commands for w in c.split() if w.endswith(".toml")):
+        try:
+            experiment = load_experiment(path) if Path(path).is_file() else None
+        except ExperimentError:
+            continue
+        if experiment is not None and experiment.name == name:
+            return experiment
+    return None
 
 
 def store_context(name: str, frame: pd.DataFrame) -> StoreContext:
     """The context of experiment `name`'s rows in `frame` (an unknown experiment: its name, no figures)."""
     commands = [c for c in frame.get("sweep_command", pd.Series(dtype=str)).dropna().unique()]
-    try:
-        experiment = load_experiment(name)
-    except ExperimentError:
+    experiment = _experiment_of(name, commands)
+    if experiment is None:
         return StoreContext(name, commands, {})
     expected = {t.id for t in experiment.trials()}
     stored = expected & set(frame["trial_id"].astype(str))
@@ -298,7 +316,7 @@ def store_context(name: str, frame: pd.DataFrame) -> StoreContext:
     else:
         partial = (f"**Partial store**: {len(stored)} of the grid's {len(expected)} trials; cells with fewer "
                    "trials than seeds, or missing from the table, are not finished (`bench sweep` resumes).")
-    return StoreContext(experiment.title, commands, experiment.paper, partial)
+    return StoreContext(experiment.title, commands, experiment.paper, partial, experiment)
 
 
 class ReportConflict(ValueError):
@@ -352,9 +370,10 @@ def write_reports(frame: pd.DataFrame, out: Path, fmt: str = "md", force: bool =
         extra, extra_figures = latency_section(group, out, str(name))
         diagnostics, diagnostic_figures = diagnostics_section(group, out, str(name), _row_label(group))
         matrix, matrix_figures = matrix_section(group, out, str(name), title)
-        extra = (extra + realtime_section(group) + matrix + study_section(group, probes, planned_llm_cells(str(name)))
-                 + probe_lines + diagnostics)
-        figures += extra_figures + matrix_figures + probe_figures + diagnostic_figures
+        ablation, ablation_figures = ablation_section(group, probes, out, str(name), context.experiment)
+        study = [] if ablation else study_section(group, probes, planned_llm_cells(str(name)))
+        extra = extra + realtime_section(group) + matrix + ablation + study + probe_lines + diagnostics
+        figures += extra_figures + matrix_figures + ablation_figures + probe_figures + diagnostic_figures
         if fmt == "csv":
             table.to_csv(path, index=False)
         elif fmt == "html":

@@ -102,11 +102,27 @@ def _made_with(row: pd.Series) -> str:
     return "; made with the seed policies " + ", ".join(f"{robot} {sha[:12]}" for robot, sha in json.loads(text).items())
 
 
+def with_variants(rows: pd.DataFrame, name: str) -> pd.DataFrame:
+    """Probe rows of an ablation, the ablated value named before the strategy (`E1: nearest-only (...)`), so that
+    variants of one strategy stay apart in the table and the figure."""
+    from benchmark.experiments.experiment import ExperimentError, load_experiment
+
+    try:
+        grid = load_experiment(name).probe.get("grid", {})
+    except ExperimentError:
+        return rows
+    axes = [a for a in grid if a not in ("model", "prompt_strategy") and a in rows]
+    if not axes:
+        return rows
+    return rows.assign(strategy=rows[axes].astype(str).agg(" ".join, axis=1) + ": " + rows["strategy"])
+
+
 def probe_section(rows: pd.DataFrame, out: Path, name: str, expected: int | None = None) -> tuple[list[str], list[Path]]:
     """Markdown lines and the figure for an experiment's probe stage (empty when it has none); `expected`: the
     probe grid's size, to say when the stage is partial."""
     if rows.empty:
         return [], []
+    rows = with_variants(rows, name)
     figure = probe_figure(rows, out / "figures" / f"{name}_probe.png")
     first = rows.iloc[0]
     lines = ["## Probe stage: each model and prompt strategy against its own prompt's trivial answers", "",

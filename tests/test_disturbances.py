@@ -10,8 +10,6 @@ from benchmark.trial.cell import make_cell
 from benchmark.trial.disturbances import DISTURBANCES
 from benchmark.trial.trials import TrialHooks, run_cell
 
-ENGINES = ["mujoco", "pybullet", pytest.param("newton", marks=pytest.mark.slow)]
-
 
 class LateralSpeed(TrialHooks):
     """The base's world-frame sideways speed after every control step."""
@@ -36,8 +34,9 @@ def test_shoves_land_on_schedule_after_the_takeover():
     assert np.allclose(jump[:at], 0.0) and jump[at + 1] > 0.5  # identical before, then shoved left
 
 
-@pytest.mark.parametrize("sim", ENGINES)
-def test_weak_motors_defeat_copying_while_the_seed_policy_walks(sim):
+@pytest.mark.parametrize("sim, undisturbed_twin", [("mujoco", True), ("pybullet", True),
+                                                    pytest.param("newton", False, marks=pytest.mark.slow)])
+def test_weak_motors_defeat_copying_while_the_seed_policy_walks(sim, undisturbed_twin):
     """A1 flat on `nearest-only`, seed 0: with 60% of the motors' torque from the takeover, `oracle` (the seed policy
     through the text channel) walks on, while `knn` and `hold`, copying targets shown for full-strength motors, do
     not; undisturbed, `knn` walks (measured over 10 seeds in MuJoCo and PyBullet: oracle 10/10, knn 0/10, hold 0/10;
@@ -49,7 +48,8 @@ def test_weak_motors_defeat_copying_while_the_seed_policy_walks(sim):
 
     assert success("oracle", "weak_motors")
     assert not success("knn", "weak_motors") and not success("hold", "weak_motors")
-    assert success("knn", "none")
+    if undisturbed_twin:  # Newton, the slowest engine here, leaves it to its matrix cells' undisturbed knn rows
+        assert success("knn", "none")
 
 
 def test_the_matrix_report_names_a_hard_track_cell_and_pairs_gains_over_seeds(tmp_path):

@@ -59,6 +59,13 @@ ADAPT: dict[str, tuple[list[str], dict[str, str]] | str] = {
     "bench sweep matrix --workers 2 --only controller=oracle": (["--dry-run"], {}),
     "bench sweep hard_track --workers 2 --only controller=knn_nearest_only": (["--dry-run"], {}),
     "bench sweep matrix --only controller=qwen15_nearest_only --seeds 5": (["--dry-run"], {}),
+    "bench sweep walking_normalization --dry-run": ([], {}),
+    "bench sweep walking_description --stage probe --threads 2": "scores two Qwen rungs on five variants (~40 min; "
+                                                                 "optional models)",
+    "bench sweep walking_description --stage closed-loop --only controller=qwen15 description=E1 --threads 2":
+        (["--dry-run"], {}),
+    "bench report reports/data/walking_history": (["--out", "walking"], {"reports/data/walking_history": str(
+        ROOT / "reports/data/walking_history")}),
     "bench report reports/data/matrix": (["--out", "matrix"], {"reports/data/matrix": str(ROOT / "reports/data/matrix")}),
     "bench report reports/data/hard_track": (["--out", "hard"], {"reports/data/hard_track": str(ROOT / "reports/data/hard_track")}),
     "bench run --llm knn --prompt-strategy nearest-only --disturbance weak_motors": (["--trials", "1"], {}),

@@ -52,7 +52,7 @@ def build_spec(robot: Robot, terrain: Terrain, physics: PhysicsConfig) -> mujoco
         heights = terrain.heights
         low, span = float(heights.min()), max(float(np.ptp(heights)), 1e-4)
         rows, cols = heights.shape
-        spec.add_hfield(name="terrain", size=[terrain.length / 2, terrain.width / 2, span, TERRAIN_BOTTOM],
+        spec.add_hfield(name="terrain", size=[terrain.size[0] / 2, terrain.size[1] / 2, span, TERRAIN_BOTTOM],
                         nrow=rows, ncol=cols, userdata=((heights - low) / span).ravel().tolist())
         ground.type, ground.hfieldname = mujoco.mjtGeom.mjGEOM_HFIELD, "terrain"
         ground.pos = [*terrain.center, low]

@@ -148,7 +148,7 @@ class NewtonWorlds:
             return
         heights = t.heights
         rows, cols = heights.shape
-        field = newton.Heightfield(data=heights, nrow=rows, ncol=cols, hx=t.length / 2, hy=t.width / 2,
+        field = newton.Heightfield(data=heights, nrow=rows, ncol=cols, hx=t.size[0] / 2, hy=t.size[1] / 2,
                                    min_z=float(heights.min()), max_z=float(heights.max()))
         scene.add_shape_heightfield(xform=wp.transform(wp.vec3(*t.center, 0.0), wp.quat_identity()),
                                     heightfield=field)

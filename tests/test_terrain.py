@@ -53,3 +53,18 @@ def test_engine_heights_match_the_grid(make, sim):
         assert s.ray_height(x, y) == pytest.approx(t.height_at(x, y), abs=1e-4)
         x, y = t.grid_x[j] + eps, t.grid_y[i] + u * t.resolution
         assert s.ray_height(x, y) == pytest.approx(t.height_at(x, y), abs=1e-4)
+
+
+def test_the_margin_surrounds_the_core_without_changing_it():
+    """Rough ground reaches `margin` metres past the core on every side (a robot drifting sideways walked off the
+    8 m core's edge), the core's heights are the same with or without it, and the digest tells the grounds apart."""
+    wide, bare = Terrain("rough", seed=3), Terrain("rough", seed=3, margin=0.0)
+    rows, cols = wide.core
+    np.testing.assert_array_equal(wide.heights[rows, cols], bare.heights)
+    assert wide.grid_y[0] == pytest.approx(-wide.width / 2 - wide.margin) and wide.grid_x[-1] == pytest.approx(
+        wide.x_min + wide.length + wide.margin)
+    outside = wide.heights[: rows.start]  # the band beyond y = -4 m
+    assert np.ptp(outside) > 0.5 * wide.roughness and outside.max() <= wide.roughness + 1e-12
+    assert wide.height_at(0.0, -wide.width / 2 - 2.0) == pytest.approx(
+        wide.heights[rows.start - 20, round((0.0 - wide.grid_x[0]) / wide.resolution)])
+    assert len({wide.digest, bare.digest, Terrain("rough", seed=4).digest, Terrain("flat").digest}) == 4

@@ -14,6 +14,7 @@ the store, so workers need no shared disk.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import importlib.metadata
 import json
@@ -38,6 +39,7 @@ from benchmark.common.store import ResultStore
 from benchmark.experiments.experiment import Trial
 from benchmark.llm.models import require_models
 from benchmark.trial.resources import Resources, Runtime, SharedModels
+from sims.terrain import Terrain
 from benchmark.trial.trials import TrialHooks, run_cell
 from robots import load_robot
 from sims import ENGINES
@@ -87,7 +89,8 @@ class _Worker:
         return {"experiment": trial.experiment, "trial_id": trial.id, "cell_id": trial.cell_id,
                 "cell_index": trial.cell_index, **cell.params(), **trial.labels, "axes": json.dumps(list(trial.labels)),
                 "eval_start": cell.eval_start, **result.to_dict(), "control_dt": PhysicsConfig().control_dt,
-                "seed_policy_sha256": seed_policy, "traj_joint_pos": trajectory.joint_pos,
+                "seed_policy_sha256": seed_policy, "terrain_sha256": terrain_digest(cell.terrain, cell.terrain_seed),
+                "traj_joint_pos": trajectory.joint_pos,
                 "load_1m": os.getloadavg()[0],  # the machine's load as the trial ended: measured latencies need it
                 "trial_wall_s": time.perf_counter() - started,
                 "traj_joint_target": trajectory.joint_target, "traj_base_x": trajectory.base_x, "worker": f"{socket.gethostname()}:{os.getpid()}"}
@@ -272,11 +275,34 @@ def shipped_seed_policy_sha256(robot: str) -> str | None:
     return hashlib.sha256(weights.read_bytes()).hexdigest()[:12] if weights.is_file() else None
 
 
+@functools.lru_cache(maxsize=64)
+def terrain_digest(kind: str, seed: int) -> str:
+    """The digest of the ground a trial of this terrain and seed walks on today."""
+    return Terrain(kind, seed=int(seed)).digest
+
+
+def stale_terrain(store: ResultStore) -> set[str]:
+    """Stored rough-ground trials made on other ground than today's (a row without the digest predates it, when the
+    rough grid had no margin and robots drifting sideways walked off its edge): a sweep runs them again."""
+    rows = store.columns(["trial_id", "terrain", "terrain_seed", "terrain_sha256"])  # a probe row has no terrain
+    rough = rows[rows["terrain"].notna() & (rows["terrain"] != "flat")]
+    stale = rough.loc[[sha != terrain_digest(kind, int(seed or 0)) for kind, seed, sha in
+                       zip(rough["terrain"], rough["terrain_seed"], rough["terrain_sha256"])]]
+    if len(stale):
+        print(f"bench: {len(stale)} stored trial(s) on rough ground ran on other ground (before the terrain's "
+              "margin): they run again", file=sys.stderr)
+    return set(stale["trial_id"])
+
+
 def stale_trials(store: ResultStore) -> set[str]:
-    """Stored trials that ran a seed policy other than the robot's shipped one: a sweep runs them again (and
-    says so), so no store mixes two seed policies silently."""
+    """Stored trials that ran a seed policy other than the robot's shipped one, or on other rough ground than
+    today's: a sweep runs them again (and says so), so no store mixes two seed policies or two grounds silently."""
     if not store.trials_dir.is_dir():
         return set()
+    return _stale_seed_policy(store) | stale_terrain(store)
+
+
+def _stale_seed_policy(store: ResultStore) -> set[str]:
     stored = store.columns(["trial_id", "robot", "seed_policy_sha256"]).dropna()
     current = {}
     for robot in stored["robot"].unique():

@@ -184,15 +184,13 @@ class Recorder:
             rec.log("world/terrain", rr.Boxes3D(centers=[[*t.center, -0.005]], half_sizes=[[t.length / 2, t.width / 2,
                                                                                              0.005]],
                                                 colors=[TERRAIN_COLOR], fill_mode="solid"), static=True)
-        else:
-            rows, cols = t.shape
-            xs, ys = np.meshgrid(t.grid_x, t.grid_y)
-            vertices = np.stack([xs.ravel(), ys.ravel(), t.heights.ravel()], axis=1)
-            idx = np.arange(rows * cols).reshape(rows, cols)
-            a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
-            triangles = np.concatenate([np.stack([a, b, d], 1), np.stack([a, d, c], 1)])
-            rec.log("world/terrain", rr.Mesh3D(vertex_positions=vertices, triangle_indices=triangles,
-                                               albedo_factor=TERRAIN_COLOR), static=True)
+        else:  # the core where robots walk at full resolution; the margin around it every MARGIN_STRIDE points
+            rows, cols = t.core
+            rec.log("world/terrain", _grid_mesh(rr, t.grid_x[cols], t.grid_y[rows], t.heights[rows, cols]),
+                    static=True)
+            k = MARGIN_STRIDE
+            rec.log("world/terrain_margin", _grid_mesh(rr, t.grid_x[::k], t.grid_y[::k], t.heights[::k, ::k] - 0.002),
+                    static=True)
         for kind, shapes in self._shapes_by_kind().items():  # sizes are static; poses come per step
             colors = [ROBOT_COLOR] * len(shapes)
             if kind == "box":
@@ -305,3 +303,16 @@ def merge_recordings(parts: list[Path], path: Path) -> Path:
     if done.returncode != 0:
         raise RuntimeError(f"merging recordings into {path} failed: {done.stderr.strip().splitlines()[-1:]}")
     return path
+
+
+MARGIN_STRIDE = 5  # grid points: the margin's mesh is drawn at 0.5 m, the core at the grid's 0.1 m
+
+
+def _grid_mesh(rr, xs: np.ndarray, ys: np.ndarray, heights: np.ndarray):
+    """A heightfield patch as a triangle mesh (two triangles a grid cell)."""
+    gx, gy = np.meshgrid(xs, ys)
+    vertices = np.stack([gx.ravel(), gy.ravel(), heights.ravel()], axis=1)
+    idx = np.arange(heights.size).reshape(heights.shape)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel()
+    triangles = np.concatenate([np.stack([a, b, d], 1), np.stack([a, d, c], 1)])
+    return rr.Mesh3D(vertex_positions=vertices, triangle_indices=triangles, albedo_factor=TERRAIN_COLOR)

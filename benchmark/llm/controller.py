@@ -25,7 +25,7 @@ from benchmark.llm.models import (MODEL_FORMS, SERVER_KINDS, LanguageModel, Repl
 from benchmark.llm.progress import PromptReading
 from benchmark.llm.prompt import LAYOUTS, PARTS, PromptConfig, build_prompt, describe_robot
 from benchmark.llm.prompt_inputs import DEFAULT_OBSERVATION, OBSERVATIONS
-from benchmark.llm.reference import history_outputs, knn_answer
+from benchmark.llm.reference import REFERENCE_KINDS, history_outputs, knn_answer
 from benchmark.llm.strategies import DEFAULT_STRATEGY, DISTANCES, MEMORIES, STRATEGIES
 from benchmark.llm.replies import parse_reply, reply_constraint
 from benchmark.llm.tokens import gpt4_tokens
@@ -40,7 +40,6 @@ HISTORY_MODES = ("auto", "sliding", "block", "shifted")
 APPROXIMATE_MODES = ("shifted",)
 SHIFT_CHUNK = 64  # tokens: llama.cpp's n_cache_reuse, the smallest cached chunk it moves instead of recomputing
 CONTROL_DT = PhysicsConfig().control_dt  # s, the 10 Hz control period every engine runs
-REFERENCE_KINDS = ("hold", "default", "knn", "replay", "oracle")
 STRATEGY_FIELDS = ("prompt_strategy", "retrieve_k", "memory", "distance")  # LLMSettings that shape the examples
 
 

@@ -196,6 +196,20 @@ def correlation_text(rows: list[dict]) -> str:
     return text + "."
 
 
+ROUGH_MARGIN_SINCE = "2026-12-04"  # rough ground got its 20 m margin (sims/terrain.py); scorecards do not record it
+
+
+def ground_lines(rows: list[dict]) -> list[str]:
+    """Which rows ran their rough closed-loop cells on the rough grid before it had its margin."""
+    before = [r for r in rows if str(r.get("made_at", "")) < ROUGH_MARGIN_SINCE
+              and any("rough" in cell for cell in (r.get("closed_loop") or {}))]
+    if not before:
+        return []
+    return [f"Rough ground: the closed-loop rough cells of {len(before)} row(s) made before {ROUGH_MARGIN_SINCE} ran on "
+            "the rough grid's 32 x 8 m core alone, before the 20 m margin it has since (robots drifting sideways "
+            "could walk off its edge: docs/matrix.md); running a row's command again remakes it.", ""]
+
+
 def seed_policy_lines(rows: list[dict], store: Path) -> list[str]:
     """Which seed policies made the probe set and ran the closed loop, so rows of two policies never mix silently."""
     from benchmark.evaluate.probe import DEFAULT_PROBE, load_probe_set
@@ -265,7 +279,7 @@ def write_leaderboard(store: Path | str = DEFAULT_STORE, out: Path | str = "repo
                   "tier ran (the same probe); the store keeps both. A row named with cells in brackets "
                   "(`bench eval --cells`, for a slow model) answered only those cells' probe items: its skill "
                   "compares with the same cells' column below, not with the overall skills above it.", "",
-                  *seed_policy_lines(shown, Path(store)),
+                  *seed_policy_lines(shown, Path(store)), *ground_lines(shown),
                   "## Per cell", "",
                   to_markdown(per_cell(shown)), ""]
         for items, comparison in comparisons(rows):

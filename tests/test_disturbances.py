@@ -37,12 +37,12 @@ def test_shoves_land_on_schedule_after_the_takeover():
 @pytest.mark.parametrize("sim, undisturbed_twin", [("mujoco", True), ("pybullet", True),
                                                     pytest.param("newton", False, marks=pytest.mark.slow)])
 def test_weak_motors_defeat_copying_while_the_seed_policy_walks(sim, undisturbed_twin):
-    """A1 flat on `nearest-only`, seed 0: with 60% of the motors' torque from the takeover, `oracle` (the seed policy
-    through the text channel) walks on, while `knn` and `hold`, copying targets shown for full-strength motors, do
-    not; undisturbed, `knn` walks (measured over 10 seeds in MuJoCo and PyBullet: oracle 10/10, knn 0/10, hold 0/10;
-    Newton, 3 seeds: 3/3, 0/3, 0/3)."""
+    """A1 flat on `nearest-only`, seed 0, 4 s after the takeover at 10 s: with 60% of the motors' torque from the
+    takeover, `oracle` (the seed policy through the text channel) walks on, while `knn` and `hold`, copying targets
+    shown for full-strength motors, do not; undisturbed, `knn` walks (measured over 10 seeds and 20 s in MuJoCo and
+    PyBullet: oracle 10/10, knn 0/10, hold 0/10; Newton, 3 seeds: 3/3, 0/3, 0/3)."""
     def success(model: str, disturbance: str) -> bool:
-        cell = make_cell({"sim": sim, "robot": "a1", "policy": "llm", "model": model,
+        cell = make_cell({"sim": sim, "robot": "a1", "policy": "llm", "model": model, "duration": 14.0,
                           "prompt_strategy": "nearest-only", "disturbance": disturbance})
         return bool(run_cell(cell, [0])[0].success)
 

@@ -45,12 +45,12 @@ def test_a_sweep_in_lockstep_stores_what_a_sequential_sweep_stores(tmp_path):
 
 @pytest.mark.slow
 def test_the_embedded_model_in_lockstep_is_measured_against_its_sequential_replies():
-    """Gemma 270M, 2 trials of 3 queries, one then two at a time on one model: every reply parses at both levels,
+    """Gemma 270M, 2 trials of 2 queries, one then two at a time on one model: every reply parses at both levels,
     and the batched replies are compared with the sequential ones. Batched decoding changes logits slightly, and a
     greedy reply that flips one token writes the rest of its line differently (Gemma's takeover replies, same
     prompt: 86 against 81, then 100s against 101s), so agreement is measured, not assumed: the difference on the
     same prompt is reported and stays within the range of a plausible answer."""
-    out = subprocess.run([*BENCH, "throughput", "--concurrency", "1", "2", "--queries", "3", "--threads", "2",
+    out = subprocess.run([*BENCH, "throughput", "--concurrency", "1", "2", "--queries", "2", "--threads", "2",
                           "--drafts", "ngram", "none", "--json"], capture_output=True, text=True, timeout=900)
     assert out.returncode == 0, out.stderr
     result = json.loads(out.stdout)
@@ -58,7 +58,7 @@ def test_the_embedded_model_in_lockstep_is_measured_against_its_sequential_repli
     assert [(row["n"], row["draft"]) for row in undrafted] == [(1, "none"), (2, "none")]  # each against the first
     assert all(0.0 <= row["identical_to_first"] <= 1.0 and row["parse_failures"] == 0 for row in undrafted)
     assert (first["n"], second["n"]) == (1, 2) and first["trials"] == second["trials"] == 2
-    assert first["queries"] == second["queries"] == 6
+    assert first["queries"] == second["queries"] == 4
     assert first["identical_to_first"] == 1.0 and 0.0 <= second["identical_to_first"] <= 1.0
     assert first["parse_failures"] == second["parse_failures"] == 0
     assert second["action_diff_same_prompt"] is not None and 0.0 <= second["action_diff_same_prompt"] < 1.0

@@ -18,14 +18,16 @@ STORE = ROOT / "reports" / "data" / "cross_engine.parquet"
 # README command -> (extra arguments appended, replacements of words, or a reason it is not run here)
 ADAPT: dict[str, tuple[list[str], dict[str, str]] | str] = {
     "bench run --policy rl": (["--trials", "2", "--duration", "2"], {}),
-    "bench run --duration 2.5 --llm-after 2 --trials 1": ([], {}),
+    "bench run --duration 2.5 --llm-after 2 --trials 1": "runs in tests/test_llm_models.py (test_llm_run_end_to_end_on"
+                                                         "_the_embedded_model: this command, with --record and --json)",
     "bench run --llm oracle --trials 2": ([], {}),
     "bench run --llm openai:gpt-4o --llm-layout chat --price-in 2.5 --price-out 10":
         "needs an OpenAI key and network; the HTTP path is tested on loopback in test_llm_models.py",
     "bench run --llm openai:m --llm-url http://127.0.0.1:8080/v1":
         "needs a server on port 8080; test_llm_models.py runs the same path against llama.cpp on loopback",
     "bench prompt --history 50 --tokenizer gpt-4": ([], {}),
-    "bench latency --histories 10 50": (["--queries", "2", "--modes", "block", "--no-drift"], {"50": "10"}),
+    "bench latency --histories 10 50": (["--queries", "2", "--modes", "block", "--no-drift", "--drafts", "ngram"],
+                                        {"50": "10"}),
     "bench list": ([], {}),
     "bench run --sim pybullet --robot anymal --terrain rough --policy rl": (["--trials", "1", "--duration", "2"], {}),
     "bench run --policy stand --duration 5 --json": (["--trials", "2"], {}),
@@ -91,7 +93,8 @@ ADAPT: dict[str, tuple[list[str], dict[str, str]] | str] = {
                                                                                           / "prompting")}),
     "bench render walk.rrd --out walk.mp4": ([], {}),  # the recording of `bench run --policy rl --record walk.rrd`
     "bench throughput --llm qwen2.5-coder-1.5b --concurrency 1 2 4 --queries 10":
-        ([], {"qwen2.5-coder-1.5b": "embedded", "4": "1", "10": "2"}),  # the ladder's model is an optional extra
+        "runs in tests/test_lockstep.py on the embedded model (the ladder's are optional extras): N = 1 and 2, both "
+        "draft settings",
 }
 
 

@@ -176,6 +176,23 @@ def test_the_probe_set_is_made_by_a_command_and_its_digest_is_stable(tmp_path):
     assert one.walks[0].observations.shape == (92, 33) and one.walks[0].actions.shape == (92, 12)
 
 
+def test_a_probe_set_is_one_engines_and_says_which(tmp_path):
+    """The same cell walked in PyBullet is another probe set (other numbers, another digest), and it names its engine;
+    `--sim` without `--make` is one line, since scoring reads the engine from the set."""
+    config = ProbeSetConfig(robots=("a1",), terrains=("flat",), rollouts=1, items=2)
+    mujoco = make_probe_set(config, progress=lambda _: None)
+    bullet = make_probe_set(dataclasses.replace(config, sim="pybullet"), progress=lambda _: None)
+    assert (mujoco.meta["config"]["sim"], bullet.meta["config"]["sim"]) == ("mujoco", "pybullet")
+    assert bullet.digest != mujoco.digest and not np.allclose(bullet.walks[0].actions, mujoco.walks[0].actions)
+    path = save_probe_set(bullet, tmp_path / "bullet.npz")
+    out = subprocess.run([*BENCH, "probe", "--llm", "hold", "--probe", str(path)], capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 0 and f"probe {bullet.digest} (pybullet)" in out.stdout, out.stderr
+    wrong = subprocess.run([*BENCH, "probe", "--llm", "hold", "--sim", "pybullet"], capture_output=True, text=True,
+                           timeout=120)
+    assert wrong.returncode == 2 and wrong.stderr.count("\n") == 1 and "--sim goes with --make" in wrong.stderr
+
+
 def test_bench_eval_quick_tier_prints_a_scorecard_and_does_not_rerun(tmp_path):
     store = tmp_path / "board"
     out = subprocess.run([*BENCH, "eval", "--llm", "knn", "--store", str(store)], capture_output=True, text=True,

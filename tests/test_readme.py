@@ -62,6 +62,10 @@ ADAPT: dict[str, tuple[list[str], dict[str, str]] | str] = {
     "bench sweep hard_track --workers 2 --only controller=knn_nearest_only": (["--dry-run"], {}),
     "bench sweep matrix --only controller=qwen15_nearest_only --seeds 5": (["--dry-run"], {}),
     "bench sweep walking_normalization --dry-run": ([], {}),
+    "bench probe --make --sim pybullet --out probe_pybullet.npz": "walks 12 seed-policy trials; tests/test_probe.py "
+                                                                  "makes a one-walk PyBullet set and scores it",
+    "bench probe --probe probe_pybullet.npz --llm qwen2.5-coder-1.5b --prompt-strategy nearest-only --history 50":
+        "an optional model on the set the command above makes (~20 min a cell set)",
     "bench sweep walking_description --stage probe --threads 2": "scores two Qwen rungs on five variants (~40 min; "
                                                                  "optional models)",
     "bench sweep walking_description --stage closed-loop --only controller=qwen15 description=E1 --threads 2":

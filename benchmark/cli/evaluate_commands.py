@@ -19,6 +19,7 @@ def cmd_probe(args, llm_values: dict, run_values: dict, runtime: Runtime) -> int
         DEFAULT_PROBE,
         ProbeProgress,
         ProbeRun,
+        ProbeSetConfig,
         answer_items,
         load_probe_set,
         make_probe_set,
@@ -28,10 +29,14 @@ def cmd_probe(args, llm_values: dict, run_values: dict, runtime: Runtime) -> int
     from benchmark.llm.controller import LLMSettings, strategy_label
 
     if args.make:
-        probe = make_probe_set(progress=lambda line: print(f"bench: {line}", file=sys.stderr, flush=True))
+        probe = make_probe_set(ProbeSetConfig(sim=args.sim or ProbeSetConfig.sim),
+                               progress=lambda line: print(f"bench: {line}", file=sys.stderr, flush=True))
         path = save_probe_set(probe, Path(args.out) if args.out else DEFAULT_PROBE)
         print(f"wrote {path}: {len(probe.walks)} walks, {probe.items()} items, digest {probe.digest}")
         return 0
+    if args.sim is not None:
+        raise CliError("--sim goes with --make (the engine a new probe set walks in); a probe set is one engine's: "
+                       "--probe PATH scores another")
     probe = load_probe_set(args.probe or DEFAULT_PROBE)
     llm = build(LLMSettings, {"history": 10, **llm_values}, "bench probe")  # the probe's default history: 10
     run = build(ProbeRun, {k: v for k, v in run_values.items() if k != "llm"}, "bench probe")
@@ -45,7 +50,7 @@ def cmd_probe(args, llm_values: dict, run_values: dict, runtime: Runtime) -> int
     if args.json:
         print(json.dumps(summary))
         return 0
-    print(f"probe {probe.digest}: {llm.model}, {strategy_label(llm)}, history {llm.history} ({run.window}), {llm.encoding}, "
+    print(f"probe {probe.digest} ({probe.meta.get('config', {}).get('sim', 'mujoco')}): {llm.model}, {strategy_label(llm)}, history {llm.history} ({run.window}), {llm.encoding}, "
           f"{llm.observation}: {summary['items']} items in {summary['wall_s']:.0f} s")
     print(f"{'cell':<14}{'items':>6}{'error':>8}{'skill':>8}{'within 1 step':>15}")
     for cell, c in summary["cells"].items():

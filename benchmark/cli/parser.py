@@ -24,6 +24,7 @@ from benchmark.checks.gait import GaitConfig
 from benchmark.checks.straight import StraightConfig
 from benchmark.checks.validate import ValidateConfig
 from benchmark.cli.options import _cell_options, _doc, _number, _Parser, add_fields
+from sims import available_sims
 from benchmark.evaluate.probe import ProbeRun
 from benchmark.llm.controller import STRATEGY_FIELDS, LLMSettings
 from benchmark.llm.encodings import ENCODINGS
@@ -242,6 +243,9 @@ def build_parser() -> argparse.ArgumentParser:
                                          "(or --make the set)", description=_doc("benchmark.evaluate.probe"), formatter_class=fmt)
     probe.add_argument("--make", action="store_true", help="walk the seed policies and write the probe set to --out")
     probe.add_argument("--out", default=None, help="where --make writes (default: the shipped probe set's path)")
+    probe.add_argument("--sim", default=None, choices=available_sims(), metavar="ENGINE",
+                       help="with --make: the engine the seed policies walk in (default mujoco; a probe set is one "
+                            "engine's, says which, and --probe PATH picks it when scoring)")
     probe.add_argument("--probe", default=None, help="a probe set .npz (default: the shipped one)")
     probe.add_argument("--json", action="store_true", help="print one JSON object instead of a table")
     add_fields(probe, LLMSettings, ["model", "url", "layout", "server", "history", *STRATEGY_FIELDS, "prompt_parts",

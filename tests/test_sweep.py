@@ -390,3 +390,16 @@ def test_a_trial_whose_seed_phase_falls_is_counted_apart(tmp_path):
     assert row["success rate"] == 1.0 and row["NWT"] == 1.0  # not 0.5: the fall is not the controller's
     write_reports(frame, tmp_path / "reports")
     assert "fell before takeover (apart)" in (tmp_path / "reports" / "early.md").read_text()
+
+
+def test_a_report_says_when_rough_trials_ran_on_earlier_ground():
+    """Rows record the ground's digest; a rough row made on other ground (or before the digest) is named in the
+    report, a row on today's ground and a flat row are not."""
+    from benchmark.experiments.report import earlier_ground
+    from benchmark.experiments.sweep import terrain_digest
+
+    today = terrain_digest("rough", 0)
+    frame = pd.DataFrame({"terrain": ["rough", "rough", "flat"], "terrain_seed": [0, 0, 0],
+                          "terrain_sha256": [today, None, "flat"]})
+    assert earlier_ground(frame).startswith("**Earlier ground**: 1 of these rough-ground trials")
+    assert earlier_ground(frame.iloc[[0, 2]]) == ""

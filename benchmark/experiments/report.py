@@ -319,6 +319,24 @@ def store_context(name: str, frame: pd.DataFrame) -> StoreContext:
     return StoreContext(experiment.title, commands, experiment.paper, partial, experiment)
 
 
+def earlier_ground(group: pd.DataFrame) -> str:
+    """A warning when rough-ground trials ran on other ground than today's (before the terrain's margin), or ""."""
+    from benchmark.experiments.sweep import terrain_digest
+
+    if "terrain" not in group:
+        return ""
+    rough = group[group["terrain"].notna() & (group["terrain"] != "flat")]
+    made_on = rough["terrain_sha256"] if "terrain_sha256" in rough else pd.Series(None, index=rough.index, dtype=object)
+    seeds = rough["terrain_seed"] if "terrain_seed" in rough else pd.Series(0, index=rough.index)
+    earlier = sum(sha != terrain_digest(kind, int(seed if pd.notna(seed) else 0))
+                  for kind, seed, sha in zip(rough["terrain"], seeds, made_on))
+    if not earlier:
+        return ""
+    return (f"**Earlier ground**: {earlier} of these rough-ground trials ran before the rough terrain had its 20 m "
+            "margin (the 32 x 8 m core is the same; a robot drifting sideways could walk off its edge), so they are "
+            "not today's trials; running the experiment again makes them on today's ground.")
+
+
 class ReportConflict(ValueError):
     """An existing report was made from another store: replacing it needs `force`."""
 
@@ -498,6 +516,9 @@ def _markdown_report(name: str, context: StoreContext, group: pd.DataFrame, tabl
                       "a reply differs from an exact recompute."]
     if context.partial:
         lines += ["", context.partial]
+    ground = earlier_ground(group)
+    if ground:
+        lines += ["", ground]
     if context.commands:
         lines += ["", "Made with:", "", *[f"    {c}" for c in context.commands]]
     lines += ["", to_markdown(headline_table(table)), "", "Detail (every metric; the HTML and CSV reports hold the "

@@ -3,6 +3,8 @@ copying the demonstrations while the seed policy's own action walks through it."
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -125,3 +127,32 @@ def test_an_engine_never_carries_one_cells_weak_motors_into_another_cell():
         shared.close()
     fresh = run_cell(cell("shoves"), [0])[0]
     assert (after.fall_time, after.distance_m) == (fresh.fall_time, fresh.distance_m)
+
+
+def test_each_engine_screens_its_cells_on_its_own_probe_set(tmp_path):
+    """A probe stage keyed by engine (MuJoCo's and PyBullet's committed sets) scores each engine's cells on its own
+    walks: two runs with two digests, and the matrix report puts each model's per-cell probe skill and gain beside
+    that engine's closed loop (knn here, whose gain over the prompt's knn is 0 by construction)."""
+    from benchmark.cli.main import main
+    from benchmark.common.store import load_results
+    from benchmark.experiments.report import write_reports
+
+    sets = Path(__file__).parents[1] / "benchmark" / "experiments"
+    path = tmp_path / "screen.toml"
+    path.write_text(
+        'name = "screen"\nseeds = 1\n[fixed]\nduration = 11.0\nllm_after = 10.0\nseed_start = 1.0\n'
+        'prompt_strategy = "nearest-only"\nhistory = 50\n[grid]\nsim = ["mujoco", "pybullet"]\nrobot = ["a1"]\n'
+        'terrain = ["flat"]\ncontroller = ["oracle", "knn_nearest_only", "hold_nearest_only"]\n[variants.controller]\n'
+        'oracle = { policy = "llm", model = "oracle" }\nknn_nearest_only = { policy = "llm", model = "knn" }\n'
+        'hold_nearest_only = { policy = "llm", model = "hold" }\n[probe]\n'
+        f'probe_set = {{ mujoco = "{sets / "prompting_probe.npz"}", pybullet = "{sets / "probe_pybullet.npz"}" }}\n'
+        'cells = ["a1/flat"]\nitems = 2\ngrid = { sim = ["mujoco", "pybullet"], model = ["knn"] }\n')
+    assert main(["sweep", str(path), "--results", str(tmp_path / "store")]) == 0
+    frame = load_results(tmp_path / "store")
+    probes = frame[frame["kind"] == "probe"]
+    assert sorted(probes["sim"]) == ["mujoco", "pybullet"] and probes["probe_digest"].nunique() == 2
+    write_reports(frame, tmp_path / "reports")
+    text = (tmp_path / "reports" / "screen.md").read_text()
+    for cell in ("mujoco/a1/flat *", "pybullet/a1/flat *"):
+        line = next(row for row in text.splitlines() if row.startswith(f"| {cell} |"))
+        assert "skill " in line and "gain +0.00 [+0.00, +0.00]" in line, line

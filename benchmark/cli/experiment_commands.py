@@ -99,7 +99,6 @@ def _stages(experiment, overrides: dict, only: dict, stage: str) -> tuple[list, 
     a stage that has none of a key's kind matches nothing (--only strategy=nearest picks probe runs alone)."""
     import dataclasses
 
-    from benchmark.evaluate.probe import DEFAULT_PROBE, load_probe_set
     from benchmark.evaluate.study import probe_jobs
     from benchmark.experiments.experiment import ExperimentError
     from benchmark.llm.controller import LLMSettings
@@ -113,7 +112,7 @@ def _stages(experiment, overrides: dict, only: dict, stage: str) -> tuple[list, 
         raise ExperimentError(f"--only: unknown setting '{unknown[0]}'; valid: {', '.join(sorted(trial_keys | probe_keys))}")
     jobs = trials = []
     if stage != "closed-loop" and experiment.probe and all(k in probe_keys for k in only):
-        jobs = probe_jobs(experiment, load_probe_set(experiment.probe_set or DEFAULT_PROBE).digest, overrides, only)
+        jobs = probe_jobs(experiment, None, overrides, only)  # each run's digest from its own probe set
     if stage != "probe" and all(k in trial_keys for k in only):
         trials = experiment.trials(overrides, only)
     return jobs, trials

@@ -14,12 +14,13 @@ finished walk (`partial/`), so a stopped stage resumes inside a run as well as b
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import json
 import os
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from benchmark.common.settings import build
@@ -31,6 +32,8 @@ from benchmark.evaluate.probe import (
     answer_walks,
     load_probe_set,
     probe_history_mode,
+    same_prompt_gain,
+    subset,
     summarize_answers,
 )
 from benchmark.experiments.experiment import Experiment, ExperimentError
@@ -52,6 +55,7 @@ class ProbeJob:
     items: int | None
     probe_digest: str
     index: int  # position in the probe grid, for tables
+    probe_path: str | None = field(default=None, compare=False)  # the set it scores on (None: the stage's)
 
     @property
     def id(self) -> str:
@@ -60,12 +64,16 @@ class ProbeJob:
         return hashlib.sha256(key.encode()).hexdigest()[:16]
 
     def label(self) -> str:
-        return f"{self.llm.model} / {strategy_label(self.llm)}"
+        """The model and prompt, and the grid's other labels (an ablation's variant, the probe set's engine)."""
+        rest = [f"{k}={v}" for k, v in self.labels.items() if k not in ("model", "prompt_strategy")]
+        return f"{self.llm.model} / {strategy_label(self.llm)}" + (f" [{', '.join(rest)}]" if rest else "")
 
 
-def probe_jobs(experiment: Experiment, probe_digest: str, overrides: dict | None = None,
+def probe_jobs(experiment: Experiment, probe_digest: str | None = None, overrides: dict | None = None,
                only: dict | None = None) -> list[ProbeJob]:
-    """The probe stage's runs (empty when the experiment has no `[probe]` table)."""
+    """The probe stage's runs (empty when the experiment has no `[probe]` table). Each scores on its probe set (the
+    engine's, where the table keys them by engine), whose digest is part of its identity; `probe_digest` gives one
+    digest for every run instead of reading the sets."""
     table = experiment.probe
     if not table:
         return []
@@ -79,14 +87,22 @@ def probe_jobs(experiment: Experiment, probe_digest: str, overrides: dict | None
             raise ExperimentError(f"{experiment.name}: probe: {err}") from None
         cells, window = tuple(table["cells"]) if table.get("cells") else None, table.get("window", "grow")
         llm = dataclasses.replace(llm, history_mode=probe_history_mode(llm, window))  # the row keeps the mode that ran
-        jobs.append(ProbeJob(experiment.name, llm, labels, window, cells, table.get("items"), probe_digest, index))
+        path = str(experiment.probe_set_for(labels) or DEFAULT_PROBE)
+        digest = probe_digest if probe_digest is not None else _digest_of(path)
+        jobs.append(ProbeJob(experiment.name, llm, labels, window, cells, table.get("items"), digest, index, path))
     return jobs
+
+
+@functools.lru_cache(maxsize=8)
+def _digest_of(path: str) -> str:
+    return load_probe_set(path).digest
 
 
 def run_probe_stage(jobs: list[ProbeJob], store: ResultStore, runtime: Runtime, probe_path: Path | str = DEFAULT_PROBE,
                     draft: str | None = None, command: str | None = None) -> tuple[int, int]:
-    """Run the jobs not yet in `store`, one row each as it finishes: (ran, already stored)."""
-    probe = load_probe_set(probe_path)
+    """Run the jobs not yet in `store`, one row each as it finishes, each on its own probe set (else `probe_path`):
+    (ran, already stored)."""
+    sets: dict[str, object] = {}
     done = store.done_ids()
     todo = [j for j in jobs if j.id not in done]
     require_models(j.llm.model for j in todo)  # stored rows need none
@@ -94,6 +110,10 @@ def run_probe_stage(jobs: list[ProbeJob], store: ResultStore, runtime: Runtime, 
         runtime = dataclasses.replace(runtime, draft=draft)
     meta = run_metadata(command)
     for number, job in enumerate(todo, 1):
+        path = str(job.probe_path or probe_path)
+        if path not in sets:
+            sets[path] = load_probe_set(path)
+        probe = sets[path]
         print(f"bench: probe {number}/{len(todo)}: {job.label()}, history {job.llm.history} ({job.window}), "
               f"{', '.join(job.cells or probe.cells)}", file=sys.stderr, flush=True)
         run = ProbeRun(llm=job.llm, window=job.window, items=job.items, cells=job.cells)
@@ -109,14 +129,27 @@ def run_probe_stage(jobs: list[ProbeJob], store: ResultStore, runtime: Runtime, 
     return len(todo), len(jobs) - len(todo)
 
 
+def cell_gains(answers) -> dict:
+    """Per probe cell: the model's skill minus the better of the same prompt's trivial answers, with its paired 95%
+    interval, [gain, low, high]."""
+    out = {}
+    for cell in dict.fromkeys(answers.cells):
+        g = same_prompt_gain(subset(answers, [cell]))
+        out[cell] = [round(float(g["gain"]), 4), round(float(g["gain_low"]), 4), round(float(g["gain_high"]), 4)]
+    return out
+
+
 def probe_row(job: ProbeJob, summary: dict, answers) -> dict:
     """A probe run as one store row (kind "probe"); per-item errors kept for paired comparisons later."""
     same = summary.get("same_prompt", {})
     llm = dataclasses.asdict(job.llm)
     llm["prompt_parts"] = "+".join(llm["prompt_parts"])
     return {"experiment": job.experiment, "trial_id": job.id, "kind": "probe", "cell_index": job.index,
-            "seed": 0, **llm, **job.labels, "strategy": strategy_label(job.llm), "window": job.window,
+            "seed": 0, **llm, **job.labels, "axes": json.dumps(list(job.labels)), "strategy": strategy_label(job.llm),
+            "window": job.window,
             "probe_cells": "+".join(job.cells) if job.cells else "all", "probe_digest": job.probe_digest,
+            "cell_skills": json.dumps({cell: round(float(c["skill"]), 4) for cell, c in summary.get("cells", {}).items()}),
+            "cell_gains": json.dumps(cell_gains(answers)),
             "items": summary["items"], "skill": summary["skill"], "skill_low": summary["skill_low"],
             "skill_high": summary["skill_high"], "error": summary["error"], "hold_error": summary["hold_error"],
             "within_step": summary["within_step"], "parse_failures": summary["parse_failures"],

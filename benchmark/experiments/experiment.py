@@ -85,8 +85,14 @@ class Experiment:
 
     @property
     def probe_set(self) -> Path | None:
-        """The probe set the probe stage scores on (None: the shipped one)."""
-        return Path(self.probe["probe_set"]) if self.probe.get("probe_set") else None
+        """The probe set the probe stage scores on (None: the shipped one; see `probe_set_for` when one per engine)."""
+        sets = self.probe.get("probe_set")
+        return Path(sets) if isinstance(sets, str) else None
+
+    def probe_set_for(self, labels: dict) -> Path | None:
+        """The probe set of one probe run: the engine's (its `sim` label) when the table keys sets by engine."""
+        sets = self.probe.get("probe_set")
+        return Path(sets[str(labels["sim"])]) if isinstance(sets, dict) else self.probe_set
 
     def probe_settings(self, overrides: dict | None = None, only: dict | None = None) -> list[tuple[dict, dict]]:
         """(LLM settings, labels) of every combination of the probe's grid: the file's [fixed] LLM settings, then
@@ -222,11 +228,19 @@ def _probe_table(path: Path, probe: dict, variants: dict) -> dict:
     unknown = [k for k in probe if k not in PROBE_KEYS]
     if unknown:
         raise ExperimentError(f"{path}: probe: unknown key '{unknown[0]}'; valid: {', '.join(PROBE_KEYS)}")
-    if "probe_set" in probe:  # a probe set .npz, relative to the experiment file
-        found = (path.parent / probe["probe_set"]).resolve()
-        if not found.is_file():
-            raise ExperimentError(f"{path}: probe.probe_set: no file '{found}' (make one: bench probe --make --out PATH)")
-        probe = {**probe, "probe_set": str(found)}
+    if "probe_set" in probe:  # a probe set .npz, relative to the experiment file; or one per engine
+        sets = probe["probe_set"]
+        if isinstance(sets, dict):
+            engines = probe.get("grid", {}).get("sim")
+            if not engines or sorted(map(str, engines)) != sorted(sets):
+                raise ExperimentError(f"{path}: probe.probe_set keyed by engine needs probe.grid.sim naming the same "
+                                      f"engines ({', '.join(sets)})")
+        found = {k: (path.parent / v).resolve() for k, v in (sets.items() if isinstance(sets, dict) else [("", sets)])}
+        for where, file in found.items():
+            if not file.is_file():
+                raise ExperimentError(f"{path}: probe.probe_set{'.' + where if where else ''}: no file '{file}' (make "
+                                      f"one: bench probe --make{' --sim ' + where if where else ''} --out PATH)")
+        probe = {**probe, "probe_set": {k: str(v) for k, v in found.items()} if isinstance(sets, dict) else str(found[""])}
     for axis, values in probe.get("grid", {}).items():
         if not isinstance(values, list) or not values:
             raise ExperimentError(f"{path}: probe.grid.{axis} must be a non-empty list")

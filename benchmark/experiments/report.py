@@ -387,7 +387,7 @@ def write_reports(frame: pd.DataFrame, out: Path, fmt: str = "md", force: bool =
         figures = [p for p in (bars, traj) if p is not None]
         extra, extra_figures = latency_section(group, out, str(name))
         diagnostics, diagnostic_figures = diagnostics_section(group, out, str(name), _row_label(group))
-        matrix, matrix_figures = matrix_section(group, out, str(name), title)
+        matrix, matrix_figures = matrix_section(group, out, str(name), title, probes)
         ablation, ablation_figures = ablation_section(group, probes, out, str(name), context.experiment)
         study = [] if ablation else study_section(group, probes, planned_llm_cells(str(name)))
         extra = extra + realtime_section(group) + matrix + ablation + study + probe_lines + diagnostics

@@ -11,6 +11,7 @@ left out of every rate here and counted apart.
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -66,7 +67,8 @@ def cell_rows(group: pd.DataFrame) -> pd.DataFrame:
         key = key if isinstance(key, tuple) else (key,)
         for controller, trials in cell.groupby("controller", sort=False):
             counted = trials[~trials["early"]]
-            rows.append({"cell": cell_label(key, axes), "controller": controller, "n": len(counted),
+            rows.append({"cell": cell_label(key, axes), "key": dict(zip(axes, key)), "controller": controller,
+                         "n": len(counted),
                          "successes": int(counted["success"].sum()), "early": int(trials["early"].sum()),
                          "s_query": live_latency_mean(counted) if "latency_mean_s" in counted else float("nan"),
                          "trial_s": float(counted["trial_wall_s"].median()) if "trial_wall_s" in counted and len(counted) else float("nan"),
@@ -115,8 +117,26 @@ def matrix_figure(rows: pd.DataFrame, path: Path, title: str) -> Path:
     return save_figure(fig, path)
 
 
-def matrix_section(group: pd.DataFrame, out: Path, name: str, title: str) -> tuple[list[str], list[Path]]:
-    """The figure, the per-cell table with each model's paired gain and speed, and the hard track."""
+def probe_screen(probes: pd.DataFrame, key: dict) -> dict:
+    """Each probed model's teacher-forced skill and gain over the same prompt's trivial answers in one undisturbed
+    cell (its engine's probe set, `cell_skills` and `cell_gains` of the probe rows); {} where none reaches it."""
+    if probes is None or probes.empty or "cell_gains" not in probes or key.get("disturbance", "none") != "none":
+        return {}
+    out, name = {}, f"{key.get('robot')}/{key.get('terrain')}"
+    for r in probes.itertuples():
+        if getattr(r, "sim", None) != key.get("sim") or not isinstance(r.cell_gains, str):
+            continue
+        skills, gains = json.loads(r.cell_skills), json.loads(r.cell_gains)
+        if name in gains:
+            gain, low, high = gains[name]
+            out[f"probe: {r.model}"] = f"skill {skills[name]:.2f}; gain {gain:+.2f} [{low:+.2f}, {high:+.2f}]"
+    return out
+
+
+def matrix_section(group: pd.DataFrame, out: Path, name: str, title: str,
+                   probes: pd.DataFrame | None = None) -> tuple[list[str], list[Path]]:
+    """The figure, the per-cell table with each model's paired gain and speed, each probed model's skill and gain in
+    the cell, and the hard track."""
     if not applies(group):
         return [], []
     rows = cell_rows(group)
@@ -150,6 +170,7 @@ def matrix_section(group: pd.DataFrame, out: Path, name: str, title: str) -> tup
             if not np.isnan(m["s_query"]):
                 text += f"; {m['s_query']:.1f} s a query, {3600 / m['trial_s']:.1f} trials an hour"
             entry[model] = text
+        entry.update(probe_screen(probes, r["key"].iloc[0]))
         table.append(entry)
     lines = ["", "## The cell matrix", "",
              f"![success per cell and controller](figures/{figure.name})", "",
@@ -158,7 +179,9 @@ def matrix_section(group: pd.DataFrame, out: Path, name: str, title: str) -> tup
              "walking prompt's trivial answers (`knn`, `hold` on nearest-only), paired over the seeds both ran, with a "
              "bootstrap 95% interval. Speed: seconds a query (live queries) and trials an hour (median trial). "
              "`*` marks the paper's cells (A1 flat and rough, ANYmal flat). A model row that says `not run` is a "
-             "partial store's gap, not a result.", "", to_markdown(pd.DataFrame(table)), "",
+             "partial store's gap, not a result. `probe:` columns screen a cell teacher-forced on its engine's probe "
+             "set: skill, and the gain over the same prompt's trivial answers with its paired 95% interval (at or "
+             "below 0 the prompt carries the imitation).", "", to_markdown(pd.DataFrame(table)), "",
              "**The hard track** (oracle success >= 0.9, both trivial answers < 0.6): "
              + (", ".join(hard) if hard else "no cell yet") + ".", ""]
     return lines, [figure]

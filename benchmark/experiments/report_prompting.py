@@ -107,10 +107,13 @@ def with_variants(rows: pd.DataFrame, name: str) -> pd.DataFrame:
     variants of one strategy stay apart in the table and the figure."""
     from benchmark.experiments.experiment import ExperimentError, load_experiment
 
-    try:
-        grid = load_experiment(name).probe.get("grid", {})
-    except ExperimentError:
-        return rows
+    if "axes" in rows and rows["axes"].notna().all():  # each row names its probe grid's axes
+        grid = list(dict.fromkeys(a for text in rows["axes"] for a in json.loads(text)))
+    else:  # rows made before they named them: the shipped experiment's grid
+        try:
+            grid = list(load_experiment(name).probe.get("grid", {}))
+        except ExperimentError:
+            return rows
     axes = [a for a in grid if a not in ("model", "prompt_strategy") and a in rows]
     if not axes:
         return rows

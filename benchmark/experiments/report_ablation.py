@@ -104,7 +104,12 @@ def variant_table(group: pd.DataFrame, probes: pd.DataFrame, experiment: Experim
         for model in probe_models:
             row[f"probe {MODEL_NAMES.get(model, model)}: skill [95%]"] = _probe_cell(probes, axis, value, model)
         out.append(row)
-    return pd.DataFrame(out)
+    columns = list(dict.fromkeys(k for row in out for k in row))  # first-seen order, then the model's columns together
+    models = [c for c in columns if c.endswith(": success [95%]")]
+    mine = [c for c in columns if any(c.startswith(m.removesuffix("success [95%]")) for m in models) or c in (
+        "tokens read / decoded a query", "s / query", "gain over the better trivial answer [95%]")]
+    head = [c for c in columns if c == axis or c.startswith("paper ")]
+    return pd.DataFrame(out, columns=[*head, *mine, *[c for c in columns if c not in head and c not in mine]]).fillna("-")
 
 
 def judge(better: pd.DataFrame, worse: pd.DataFrame, rng: np.random.Generator) -> tuple[str, str]:

@@ -92,27 +92,33 @@ class Terrain:
         trial made on other ground runs again)."""
         if self.is_flat:
             return "flat"
-        extent = np.array([self.grid_x[0], self.grid_y[0], self.resolution, *self.shape], dtype=float)
+        extent = np.array([*self.origin, self.resolution, *self.shape], dtype=float)
         return hashlib.sha256(extent.tobytes() + self.heights.tobytes()).hexdigest()[:16]
 
     @property
+    def origin(self) -> tuple[float, float]:
+        """(x, y) of the whole grid's first point, metres."""
+        return self.x_min - self.margin, -self.width / 2 - self.margin
+
+    @property
     def grid_x(self) -> np.ndarray:
-        return self.x_min - self.margin + self.resolution * np.arange(self.shape[1])
+        return self.origin[0] + self.resolution * np.arange(self.shape[1])
 
     @property
     def grid_y(self) -> np.ndarray:
-        return -self.width / 2 - self.margin + self.resolution * np.arange(self.shape[0])
+        return self.origin[1] + self.resolution * np.arange(self.shape[0])
 
     @property
     def center(self) -> tuple[float, float]:
-        return self.x_min - self.margin + self.size[0] / 2, 0.0
+        return self.origin[0] + self.size[0] / 2, 0.0
 
     def height_at(self, x: float, y: float) -> float:
         """Bilinear height under (x, y); 0 outside the grid."""
         if self.is_flat:
             return 0.0
-        fx = (x - self.grid_x[0]) / self.resolution
-        fy = (y - self.grid_y[0]) / self.resolution
+        x0, y0 = self.origin  # scalars: this runs every control step (falls, heights), no grid arrays built
+        fx = (x - x0) / self.resolution
+        fy = (y - y0) / self.resolution
         rows, cols = self.shape
         if not (0 <= fx <= cols - 1 and 0 <= fy <= rows - 1):
             return 0.0

@@ -88,21 +88,25 @@ def probe_jobs(experiment: Experiment, probe_digest: str | None = None, override
         cells, window = tuple(table["cells"]) if table.get("cells") else None, table.get("window", "grow")
         llm = dataclasses.replace(llm, history_mode=probe_history_mode(llm, window))  # the row keeps the mode that ran
         path = str(experiment.probe_set_for(labels) or DEFAULT_PROBE)
-        digest = probe_digest if probe_digest is not None else _digest_of(path)
+        digest = probe_digest if probe_digest is not None else _probe_set(path).digest
         jobs.append(ProbeJob(experiment.name, llm, labels, window, cells, table.get("items"), digest, index, path))
     return jobs
 
 
+def _probe_set(path: str):
+    """A probe set read once while its file is unchanged: the stage's runs name it for its digest, then score on it."""
+    return _read_probe_set(path, Path(path).stat().st_mtime_ns if Path(path).is_file() else None)
+
+
 @functools.lru_cache(maxsize=8)
-def _digest_of(path: str) -> str:
-    return load_probe_set(path).digest
+def _read_probe_set(path: str, mtime_ns: int | None):
+    return load_probe_set(path)
 
 
 def run_probe_stage(jobs: list[ProbeJob], store: ResultStore, runtime: Runtime, probe_path: Path | str = DEFAULT_PROBE,
                     draft: str | None = None, command: str | None = None) -> tuple[int, int]:
     """Run the jobs not yet in `store`, one row each as it finishes, each on its own probe set (else `probe_path`):
     (ran, already stored)."""
-    sets: dict[str, object] = {}
     done = store.done_ids()
     todo = [j for j in jobs if j.id not in done]
     require_models(j.llm.model for j in todo)  # stored rows need none
@@ -110,10 +114,7 @@ def run_probe_stage(jobs: list[ProbeJob], store: ResultStore, runtime: Runtime, 
         runtime = dataclasses.replace(runtime, draft=draft)
     meta = run_metadata(command)
     for number, job in enumerate(todo, 1):
-        path = str(job.probe_path or probe_path)
-        if path not in sets:
-            sets[path] = load_probe_set(path)
-        probe = sets[path]
+        probe = _probe_set(str(job.probe_path or probe_path))
         print(f"bench: probe {number}/{len(todo)}: {job.label()}, history {job.llm.history} ({job.window}), "
               f"{', '.join(job.cells or probe.cells)}", file=sys.stderr, flush=True)
         run = ProbeRun(llm=job.llm, window=job.window, items=job.items, cells=job.cells)

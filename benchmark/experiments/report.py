@@ -321,15 +321,9 @@ def store_context(name: str, frame: pd.DataFrame) -> StoreContext:
 
 def earlier_ground(group: pd.DataFrame) -> str:
     """A warning when rough-ground trials ran on other ground than today's (before the terrain's margin), or ""."""
-    from benchmark.experiments.sweep import terrain_digest
+    from benchmark.experiments.sweep import on_other_ground
 
-    if "terrain" not in group:
-        return ""
-    rough = group[group["terrain"].notna() & (group["terrain"] != "flat")]
-    made_on = rough["terrain_sha256"] if "terrain_sha256" in rough else pd.Series(None, index=rough.index, dtype=object)
-    seeds = rough["terrain_seed"] if "terrain_seed" in rough else pd.Series(0, index=rough.index)
-    earlier = sum(sha != terrain_digest(kind, int(seed if pd.notna(seed) else 0))
-                  for kind, seed, sha in zip(rough["terrain"], seeds, made_on))
+    earlier = int(on_other_ground(group).sum())
     if not earlier:
         return ""
     return (f"**Earlier ground**: {earlier} of these rough-ground trials ran before the rough terrain had its 20 m "

@@ -31,6 +31,7 @@ from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from pathlib import Path
 
+import pandas as pd
 from tqdm import tqdm
 
 from benchmark.common.fingerprint import fingerprint_id, platform_fingerprint
@@ -281,13 +282,23 @@ def terrain_digest(kind: str, seed: int) -> str:
     return Terrain(kind, seed=int(seed)).digest
 
 
+def on_other_ground(rows: pd.DataFrame) -> pd.Series:
+    """Which rows are rough-ground trials made on other ground than today's (a row without `terrain_sha256` predates
+    it, when the rough grid had no margin and robots drifting sideways walked off its edge). Rows without a terrain
+    (probe runs) and flat rows never are."""
+    def column(name: str, default) -> pd.Series:
+        return rows[name] if name in rows else pd.Series(default, index=rows.index, dtype=object)
+
+    kinds, seeds, made_on = column("terrain", None), column("terrain_seed", 0), column("terrain_sha256", None)
+    return pd.Series([isinstance(kind, str) and kind != "flat"
+                      and sha != terrain_digest(kind, int(seed) if pd.notna(seed) else 0)
+                      for kind, seed, sha in zip(kinds, seeds, made_on)], index=rows.index, dtype=bool)
+
+
 def stale_terrain(store: ResultStore) -> set[str]:
-    """Stored rough-ground trials made on other ground than today's (a row without the digest predates it, when the
-    rough grid had no margin and robots drifting sideways walked off its edge): a sweep runs them again."""
-    rows = store.columns(["trial_id", "terrain", "terrain_seed", "terrain_sha256"])  # a probe row has no terrain
-    rough = rows[rows["terrain"].notna() & (rows["terrain"] != "flat")]
-    stale = rough.loc[[sha != terrain_digest(kind, int(seed or 0)) for kind, seed, sha in
-                       zip(rough["terrain"], rough["terrain_seed"], rough["terrain_sha256"])]]
+    """Stored rough-ground trials made on other ground than today's (`on_other_ground`): a sweep runs them again."""
+    rows = store.columns(["trial_id", "terrain", "terrain_seed", "terrain_sha256"])
+    stale = rows[on_other_ground(rows)]
     if len(stale):
         print(f"bench: {len(stale)} stored trial(s) on rough ground ran on other ground (before the terrain's "
               "margin): they run again", file=sys.stderr)

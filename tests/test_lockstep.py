@@ -65,3 +65,26 @@ def test_the_embedded_model_in_lockstep_is_measured_against_its_sequential_repli
     rates = result["rates"]
     assert rates["prefill_tok_s"] > 10 and rates["decode_tok_s"] > 1
     assert first["floor_s"] > 0 and first["latency_mean_s"] > 0 and first["read_tokens"] > 0
+
+
+@pytest.mark.slow
+def test_speed_settings_run_side_by_side_and_the_fast_one_reads_fewer_tokens():
+    """`--settings default fast` measures both settings in one run on Gemma 270M: each row is compared only with
+    replies to its own prompt (fast writes another one), and fast's E4c layout with one example reads well under
+    two thirds of what the default's E5 with three does."""
+    out = subprocess.run([*BENCH, "throughput", "--settings", "default", "fast", "--concurrency", "1", "--queries", "2",
+                          "--threads", "2", "--json"], capture_output=True, text=True, timeout=600)
+    assert out.returncode == 0, out.stderr
+    default, fast = json.loads(out.stdout)["levels"]
+    assert (default["setting"], default["encoding"], default["retrieve_k"]) == ("default", "E5", 3)
+    assert (fast["setting"], fast["encoding"], fast["draft"], fast["retrieve_k"]) == ("fast", "E4c", "none", 1)
+    assert default["identical_to_first"] == fast["identical_to_first"] == 1.0  # each against its own prompt's first
+    assert fast["read_tokens"] < 0.67 * default["read_tokens"] and fast["parse_failures"] == 0
+    assert default["speedup"] == 1.0 and fast["speedup"] > 0
+
+
+def test_speed_settings_name_their_own_layout_so_an_encoding_beside_them_is_refused():
+    out = subprocess.run([*BENCH, "throughput", "--settings", "fast", "--encoding", "E5"], capture_output=True,
+                         text=True, timeout=60)
+    assert out.returncode == 2 and "Traceback" not in out.stderr
+    assert "--settings names the layout" in out.stderr and "default, compact, fast" in out.stderr

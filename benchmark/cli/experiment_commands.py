@@ -66,10 +66,11 @@ def cmd_sweep(args, overrides_text: list[str], only_text: list[str]) -> int:
             _print_cost(cells, args)
         return 0
     try:
+        from benchmark.trial.resources import Runtime
+
         if jobs:
             from benchmark.evaluate.probe import DEFAULT_PROBE
             from benchmark.evaluate.study import run_probe_stage
-            from benchmark.trial.resources import Runtime
 
             ran, stored = run_probe_stage(jobs, store, Runtime(threads=args.threads), draft=experiment.probe.get("draft"),
                                           command=" ".join(["bench", *args.argv]),
@@ -79,7 +80,8 @@ def cmd_sweep(args, overrides_text: list[str], only_text: list[str]) -> int:
             return 0
         outcome = run_sweep(trials, store, workers=args.workers, executor=args.executor, address=args.ray_address,
                             requests_per_minute=args.rate_limit, threads=args.threads,
-                            command=" ".join(["bench", *args.argv]), concurrency=args.concurrency)
+                            command=" ".join(["bench", *args.argv]), concurrency=args.concurrency,
+                            runtime=Runtime(draft=args.draft))
     except (TrialError, LLMError) as err:
         print(f"bench: error: {err} ({len(store.done_ids())} trial(s) stored in {store.root}; "
               "run the same command again to resume)", file=sys.stderr)

@@ -10,11 +10,20 @@ from pathlib import Path
 
 def cmd_throughput(args) -> int:
     from benchmark.llm.models import require_models
-    from benchmark.llm.throughput import ThroughputRun, measure, table
+    from benchmark.llm.throughput import SPEED_SETTINGS, Setup, ThroughputRun, measure, table
 
+    if args.settings and (args.encoding or args.drafts):
+        print("bench: error: --settings names the layout and draft itself; give it alone, or --encoding and --drafts "
+              f"without it (settings: {', '.join(SPEED_SETTINGS)})", file=sys.stderr)
+        return 2
     require_models([args.llm])
-    run = ThroughputRun(model=args.llm, strategy=args.prompt_strategy, encoding=args.encoding, concurrency=tuple(args.concurrency),
-                        queries=args.queries, threads=args.threads, drafts=tuple(args.drafts))
+    if args.settings:
+        setups = tuple(SPEED_SETTINGS[name][0] for name in args.settings)
+    else:
+        setups = tuple(Setup(encoding=args.encoding or Setup.encoding, draft=draft)
+                       for draft in (args.drafts or [Setup.draft]))
+    run = ThroughputRun(model=args.llm, strategy=args.prompt_strategy, concurrency=tuple(args.concurrency),
+                        queries=args.queries, threads=args.threads, setups=setups)
     result = measure(run)
     if args.json:
         print(json.dumps(result))

@@ -30,6 +30,7 @@ from benchmark.llm.controller import STRATEGY_FIELDS, LLMSettings
 from benchmark.llm.encodings import ENCODINGS
 from benchmark.llm.latency import MODES as LATENCY_MODES
 from benchmark.llm.strategies import DEFAULT_STRATEGY, STRATEGIES
+from benchmark.llm.throughput import SPEED_SETTINGS
 from benchmark.training.train import TrainConfig
 from benchmark.trial.registry import POLICIES
 from benchmark.trial.resources import DEFAULT_DRAFT, DRAFTS, Runtime
@@ -80,15 +81,19 @@ def build_parser() -> argparse.ArgumentParser:
                             help="an embedded model or ladder name (llama.cpp's timings give the floor; default embedded)")
     throughput.add_argument("--prompt-strategy", default="nearest-only", choices=list(STRATEGIES),
                             help="the prompt (default nearest-only, the one a model walks on)")
-    throughput.add_argument("--encoding", default="E5", choices=list(ENCODINGS),
+    throughput.add_argument("--encoding", default=None, choices=list(ENCODINGS),
                             help="the number layout (default E5; E5c and E4c are the compact variants)")
+    throughput.add_argument("--settings", nargs="+", default=None, choices=list(SPEED_SETTINGS), metavar="NAME",
+                            help="named speed settings, one set of levels each, side by side in this run: "
+                                 + "; ".join(f"{name}: {text}" for name, (_, text) in SPEED_SETTINGS.items())
+                                 + " (instead of --encoding and --drafts)")
     throughput.add_argument("--concurrency", nargs="+", type=_number(int, True), default=[1, 2, 4], metavar="N",
                             help="trials in lockstep, one level each; every level runs the same max(N) trials "
                                  "(default 1 2 4)")
     throughput.add_argument("--queries", type=_number(int, True), default=10,
                             help="LLM queries a trial (a full trial has 100; default 10)")
     throughput.add_argument("--threads", type=_number(int, True), default=None, help="llama.cpp threads (default: all cores)")
-    throughput.add_argument("--drafts", nargs="+", default=[DEFAULT_DRAFT], choices=DRAFTS, metavar="DRAFT",
+    throughput.add_argument("--drafts", nargs="+", default=None, choices=DRAFTS, metavar="DRAFT",
                             help=f"speculative decoding, one set of levels each, compared with the first "
                                  f"({', '.join(DRAFTS)}; default {DEFAULT_DRAFT})")
     throughput.add_argument("--out", default=None, metavar="PATH.md", help="also write the table to this file")
@@ -142,6 +147,10 @@ def build_parser() -> argparse.ArgumentParser:
                        help="remote LLM servers: at most RPM queries a minute over all workers")
     sweep.add_argument("--threads", type=_number(int, True), default=None,
                        help="llama.cpp threads per worker (default: cores / workers)")
+    sweep.add_argument("--draft", default=Runtime.draft, choices=DRAFTS,
+                       help=f"embedded models, closed loop: speculative decoding ({', '.join(DRAFTS)}; default "
+                            f"{Runtime.draft}); it changes a query's time, not a trial's id (a greedy near-tie can flip a "
+                            f"reply: docs/models.md measures how often)")
     for name in ("price_in", "price_out", "price_cached_in"):  # with --dry-run: the estimated bill
         sweep.add_argument("--" + name.replace("_", "-"), type=_number(float), default=None, metavar="USD",
                            help=f"{name.replace('_', ' ')} per 1M tokens: --dry-run estimates the bill")

@@ -21,6 +21,12 @@ the prompts differ too).
 the first: speculative decoding keeps greedy replies in principle (a draft token is kept only where the
 model would have chosen it), so the agreement column checks that, and the seconds a query say whether
 checking drafts pays on this machine.
+
+**Speed settings.** `--settings default fast` runs every level once per named setting (a number layout, a
+draft and how many examples the prompt shows; `SPEED_SETTINGS` below), in one run on one machine, so the
+"x first row" column is the speed-up of one setting over another measured side by side. A setting that writes
+another prompt is compared only with rows on the same prompt: its replies cannot be identical to another
+prompt's, and whether it walks as well is the closed loop's question (the `compact` experiments).
 """
 
 from __future__ import annotations
@@ -42,16 +48,40 @@ DECODE_PROBE_TOKENS = 64
 
 
 @dataclasses.dataclass(frozen=True)
+class Setup:
+    """What a query reads and how it decodes: the number layout, the draft and the examples shown."""
+
+    encoding: str = LLMSettings.encoding
+    draft: str = Runtime.draft
+    retrieve_k: int = LLMSettings.retrieve_k
+
+    @property
+    def prompt(self) -> tuple[str, int]:
+        """What decides the prompt's text (the draft does not)."""
+        return self.encoding, self.retrieve_k
+
+    def label(self) -> str:
+        return f"{self.encoding}, draft {self.draft}, {self.retrieve_k} example{'s' * (self.retrieve_k != 1)}"
+
+
+SPEED_SETTINGS: dict[str, tuple[Setup, str]] = {
+    "default": (Setup(), "the paper's E5 layout, n-gram draft, 3 retrieved examples: every study's setting"),
+    "compact": (Setup("E4c", "none", 3), "E4c (0..100, no space after commas), no draft, 3 examples: the same "
+                                         "examples in a third fewer tokens"),
+    "fast": (Setup("E4c", "none", 1), "E4c, no draft, 1 example (the nearest): about half compact's tokens"),
+}
+
+
+@dataclasses.dataclass(frozen=True)
 class ThroughputRun:
     """What `bench throughput` measures."""
 
     model: str = "embedded"
     strategy: str = "nearest-only"
-    encoding: str = "E5"
     concurrency: tuple[int, ...] = (1, 2, 4)
     queries: int = 10  # LLM queries a trial (a full trial has 100)
     threads: int | None = None
-    drafts: tuple[str, ...] = (Runtime.draft,)  # speculative decoding settings, one set of levels each
+    setups: tuple[Setup, ...] = (Setup(),)  # one set of levels each, in order
 
 
 class _Trials(TrialHooks):
@@ -64,8 +94,9 @@ class _Trials(TrialHooks):
         self.policies[seed] = policy
 
 
-def _cell(run: ThroughputRun) -> CellSpec:
-    settings = LLMSettings(model=run.model, prompt_strategy=run.strategy, encoding=run.encoding)
+def _cell(run: ThroughputRun, setup: Setup) -> CellSpec:
+    settings = LLMSettings(model=run.model, prompt_strategy=run.strategy, encoding=setup.encoding,
+                           retrieve_k=setup.retrieve_k)
     return CellSpec(sim="mujoco", robot="a1", policy="llm", duration=settings.llm_after + CONTROL_DT * run.queries,
                     settings=settings)
 
@@ -113,35 +144,38 @@ def floor_of(replies, rates: dict) -> np.ndarray:
 
 
 def measure(run: ThroughputRun) -> dict:
-    """The model's rates, then one row per concurrency level (see the module's docstring)."""
-    cell = _cell(run)
-    rates = model_rates(run, cell)
+    """The model's rates, then one row per setup and concurrency level (see the module's docstring)."""
+    rates = model_rates(run, _cell(run, run.setups[0]))
     seeds = list(range(max(run.concurrency)))
-    levels, first = [], None  # first: the lowest level's queries by seed, what every level is compared with
-    for draft, n in [(d, n) for d in dict.fromkeys(run.drafts) for n in sorted(set(run.concurrency))]:
-        print(f"bench: throughput: {len(seeds)} trials of {run.queries} queries, {n} at a time, draft {draft} ...",
+    levels, first = [], {}  # first: per prompt, its first level's queries by seed, what its other levels are compared with
+    for setup, n in [(u, n) for u in dict.fromkeys(run.setups) for n in sorted(set(run.concurrency))]:
+        print(f"bench: throughput: {len(seeds)} trials of {run.queries} queries, {n} at a time, {setup.label()} ...",
               file=sys.stderr, flush=True)
-        level = run_level(run, cell, seeds, n, draft)
+        level = run_level(run, _cell(run, setup), seeds, n, setup.draft)
         by_seed = level["queries"]
-        first = by_seed if first is None else first
+        first.setdefault(setup.prompt, by_seed)
         queries = [q for qs in by_seed.values() for q in qs]
         replies = [q.reply for q in queries]
-        row = {"n": n, "draft": draft, "trials": len(by_seed), "queries": len(queries), "wall_s": level["wall_s"],
+        row = {"n": n, "draft": setup.draft, "encoding": setup.encoding, "retrieve_k": setup.retrieve_k,
+               "setting": next((name for name, (u, _) in SPEED_SETTINGS.items() if u == setup), None),
+               "trials": len(by_seed), "queries": len(queries), "wall_s": level["wall_s"],
                "queries_per_hour": 3600.0 * len(queries) / level["wall_s"],
                "parse_failures": sum(not q.parsed for q in queries),
                "latency_mean_s": float(np.mean([r.latency_s for r in replies])),
                "cached_tokens": float(np.mean([r.cached_tokens for r in replies])),
                "decoded_tokens": float(np.mean([r.completion_tokens for r in replies])),
                "floor_s": float(np.mean(floor_of(replies, rates))), **query_timings(queries),
-               **_agreement(by_seed, first)}
+               **_agreement(by_seed, first[setup.prompt])}
         row["trials_per_hour"] = row["queries_per_hour"] / TRIAL_QUERIES
         levels.append(row)
-        print(f"bench: throughput: N = {n}: {row['trials_per_hour']:.2f} trials an hour "
+        print(f"bench: throughput: N = {n}, {setup.label()}: {row['trials_per_hour']:.2f} trials an hour "
               f"({len(queries)} queries in {level['wall_s']:.0f} s)", file=sys.stderr, flush=True)
     for row in levels:
         row["speedup"] = row["queries_per_hour"] / levels[0]["queries_per_hour"]
-    return {"model": run.model, "strategy": run.strategy, "encoding": run.encoding, "queries_per_trial": run.queries,
-            "rates": rates, "levels": levels, "threads": run.threads, "drafts": list(dict.fromkeys(run.drafts))}
+    setups = list(dict.fromkeys(run.setups))
+    return {"model": run.model, "strategy": run.strategy, "encoding": setups[0].encoding,
+            "queries_per_trial": run.queries, "rates": rates, "levels": levels, "threads": run.threads,
+            "drafts": list(dict.fromkeys(u.draft for u in setups)), "setups": [dataclasses.asdict(u) for u in setups]}
 
 
 def _agreement(mine: dict, reference: dict) -> dict:
@@ -165,28 +199,35 @@ def _agreement(mine: dict, reference: dict) -> dict:
 
 
 def table(result: dict) -> str:
-    """The result as Markdown: the rates, then one row per concurrency level and draft, each against the first."""
+    """The result as Markdown: the rates, then one row per setup and concurrency level, each against the first."""
     r = result["rates"]
     base = result["levels"][0]
-    lines = [f"{result['model']} on `{result['strategy']}`, encoding {result['encoding']} (A1, flat, MuJoCo; the paper's protocol, {result['queries_per_trial']} "
-             f"LLM queries a trial; draft {', '.join(result['drafts'])}). Model rates, measured in this run on a fresh model: "
+    setups = {(u["encoding"], u["draft"], u["retrieve_k"]) for u in result["setups"]}
+    lines = [f"{result['model']} on `{result['strategy']}` (A1, flat, MuJoCo; the paper's protocol, "
+             f"{result['queries_per_trial']} LLM queries a trial). Model rates, measured in this run on a fresh model: "
              f"prefill {r['prefill_tok_s']:.0f} tokens/s (a {r['prompt_tokens']}-token takeover prompt read cold), "
              f"decode {r['decode_tok_s']:.1f} tokens/s ({r['decoded_tokens']} free tokens, no grammar, no draft).", "",
-             f"Per query at N = {base['n']}, draft {base['draft']}: {base['read_tokens']:.0f} tokens read anew, {base['cached_tokens']:.0f} "
+             f"Per query in the first row: {base['read_tokens']:.0f} tokens read anew, {base['cached_tokens']:.0f} "
              f"from the prefix cache, {base['decoded_tokens']:.0f} decoded; llama.cpp's own time {base['prefill_s_mean']:.2f} s "
              f"reading + {base['decode_s_mean']:.2f} s decoding; floor {base['floor_s']:.2f} s; measured "
              f"{base['latency_mean_s']:.2f} s = **{base['latency_mean_s'] / base['floor_s']:.2f} x the floor**"
              + (f"; n-gram draft acceptance {base['draft_acceptance']:.2f}" if base.get("draft_acceptance") is not None
-                else "") + ".", "",
-             "| trials at a time (N) | draft | trials | queries | wall (s) | s a query, each trial | queries an hour | "
-             "trials an hour (100 queries, extrapolated) | x first row | replies identical to the first row | first "
-             "differing query, per trial | mean abs action difference, same prompt |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+                else "") + ".", ""]
+    if len(setups) > 1:
+        lines += ["Replies are compared with the first row on the same prompt (layout and examples shown); a setting "
+                  "that writes another prompt starts its own comparison.", ""]
+    lines += ["| setting | layout | draft | examples | trials at a time (N) | trials | queries | wall (s) | read anew / "
+              "decoded a query | s a query | floor ratio | queries an hour | trials an hour (100 queries, "
+              "extrapolated) | x first row | replies identical to the first row on this prompt | first differing "
+              "query, per trial | mean abs action difference, same prompt |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for row in result["levels"]:
         same = "-" if row["identical_to_first"] is None else f"{row['identical_to_first']:.2f}"
         parted = ", ".join("none" if i is None else str(i) for i in row["first_difference"])
         diff = "-" if row["action_diff_same_prompt"] is None else f"{row['action_diff_same_prompt']:.3f}"
-        lines.append(f"| {row['n']} | {row['draft']} | {row['trials']} | {row['queries']} | {row['wall_s']:.0f} | "
-                     f"{row['latency_mean_s']:.2f} | {row['queries_per_hour']:.0f} | {row['trials_per_hour']:.2f} | "
-                     f"{row['speedup']:.2f} | {same} | {parted} | {diff} |")
+        lines.append(f"| {row.get('setting') or '-'} | {row['encoding']} | {row['draft']} | {row['retrieve_k']} | "
+                     f"{row['n']} | {row['trials']} | {row['queries']} | {row['wall_s']:.0f} | "
+                     f"{row['read_tokens']:.0f} / {row['decoded_tokens']:.0f} | {row['latency_mean_s']:.2f} | "
+                     f"{row['latency_mean_s'] / row['floor_s']:.2f} | {row['queries_per_hour']:.0f} | "
+                     f"{row['trials_per_hour']:.2f} | {row['speedup']:.2f} | {same} | {parted} | {diff} |")
     return "\n".join(lines)

@@ -77,7 +77,7 @@ def test_speed_settings_run_side_by_side_and_the_fast_one_reads_fewer_tokens():
     assert out.returncode == 0, out.stderr
     default, fast = json.loads(out.stdout)["levels"]
     assert (default["setting"], default["encoding"], default["retrieve_k"]) == ("default", "E5", 3)
-    assert (fast["setting"], fast["encoding"], fast["draft"], fast["retrieve_k"]) == ("fast", "E4c", "none", 1)
+    assert (fast["setting"], fast["encoding"], fast["draft"], fast["retrieve_k"]) == ("fast", "E4c", "ngram", 1)
     assert default["identical_to_first"] == fast["identical_to_first"] == 1.0  # each against its own prompt's first
     assert fast["read_tokens"] < 0.67 * default["read_tokens"] and fast["parse_failures"] == 0
     assert default["speedup"] == 1.0 and fast["speedup"] > 0
@@ -87,4 +87,4 @@ def test_speed_settings_name_their_own_layout_so_an_encoding_beside_them_is_refu
     out = subprocess.run([*BENCH, "throughput", "--settings", "fast", "--encoding", "E5"], capture_output=True,
                          text=True, timeout=60)
     assert out.returncode == 2 and "Traceback" not in out.stderr
-    assert "--settings names the layout" in out.stderr and "default, compact, fast" in out.stderr
+    assert "--settings names the number layout" in out.stderr and "default, compact, fast" in out.stderr

@@ -100,6 +100,10 @@ ADAPT: dict[str, tuple[list[str], dict[str, str]] | str] = {
     "bench throughput --llm qwen2.5-coder-1.5b --concurrency 1 2 4 --queries 10":
         "runs in tests/test_lockstep.py on the embedded model (the ladder's are optional extras): N = 1 and 2, both "
         "draft settings",
+    "bench throughput --llm qwen2.5-coder-1.5b --settings default fast --concurrency 1":
+        "runs in tests/test_lockstep.py on the embedded model: the default and fast settings side by side",
+    "bench throughput --llm qwen2.5-coder-1.5b --settings default compact fast --concurrency 1 --queries 10 --threads 2":
+        "runs in tests/test_lockstep.py on the embedded model: the default and fast settings side by side",
 }
 
 

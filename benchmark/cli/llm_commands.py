@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import sys
@@ -12,16 +13,15 @@ def cmd_throughput(args) -> int:
     from benchmark.llm.models import require_models
     from benchmark.llm.throughput import SPEED_SETTINGS, Setup, ThroughputRun, measure, table
 
-    if args.settings and (args.encoding or args.drafts):
-        print("bench: error: --settings names the layout and draft itself; give it alone, or --encoding and --drafts "
-              f"without it (settings: {', '.join(SPEED_SETTINGS)})", file=sys.stderr)
+    if args.settings and args.encoding:
+        print("bench: error: --settings names the number layout itself; give it alone, or --encoding without it "
+              f"(settings: {', '.join(SPEED_SETTINGS)})", file=sys.stderr)
         return 2
     require_models([args.llm])
-    if args.settings:
-        setups = tuple(SPEED_SETTINGS[name][0] for name in args.settings)
-    else:
-        setups = tuple(Setup(encoding=args.encoding or Setup.encoding, draft=draft)
-                       for draft in (args.drafts or [Setup.draft]))
+    chosen = [SPEED_SETTINGS[name][0] for name in args.settings] if args.settings \
+        else [Setup(encoding=args.encoding or Setup.encoding)]
+    drafts = args.drafts or ([None] if args.settings else [Setup.draft])  # None: the setting's own draft
+    setups = tuple(u if d is None else dataclasses.replace(u, draft=d) for u in chosen for d in drafts)
     run = ThroughputRun(model=args.llm, strategy=args.prompt_strategy, concurrency=tuple(args.concurrency),
                         queries=args.queries, threads=args.threads, setups=setups)
     result = measure(run)

@@ -86,7 +86,7 @@ def build_parser() -> argparse.ArgumentParser:
     throughput.add_argument("--settings", nargs="+", default=None, choices=list(SPEED_SETTINGS), metavar="NAME",
                             help="named speed settings, one set of levels each, side by side in this run: "
                                  + "; ".join(f"{name}: {text}" for name, (_, text) in SPEED_SETTINGS.items())
-                                 + " (instead of --encoding and --drafts)")
+                                 + " (instead of --encoding; with --drafts, each setting once per draft)")
     throughput.add_argument("--concurrency", nargs="+", type=_number(int, True), default=[1, 2, 4], metavar="N",
                             help="trials in lockstep, one level each; every level runs the same max(N) trials "
                                  "(default 1 2 4)")

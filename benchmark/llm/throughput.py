@@ -26,7 +26,10 @@ checking drafts pays on this machine.
 draft and how many examples the prompt shows; `SPEED_SETTINGS` below), in one run on one machine, so the
 "x first row" column is the speed-up of one setting over another measured side by side. A setting that writes
 another prompt is compared only with rows on the same prompt: its replies cannot be identical to another
-prompt's, and whether it walks as well is the closed loop's question (the `compact` experiments).
+prompt's, and whether it walks as well is the closed loop's question (the `compact` experiment). With
+`--drafts`, each setting runs once per draft given instead of with its own. `--queries 100` measures whole
+trials: later queries find more of their prompt in llama.cpp's prompt cache (an example shown a gait cycle
+before), so a short run's extrapolation can differ from a whole trial's rate.
 """
 
 from __future__ import annotations
@@ -54,6 +57,7 @@ class Setup:
     encoding: str = LLMSettings.encoding
     draft: str = Runtime.draft
     retrieve_k: int = LLMSettings.retrieve_k
+    name: str | None = None  # the named setting this comes from (`SPEED_SETTINGS`), if any
 
     @property
     def prompt(self) -> tuple[str, int]:
@@ -65,10 +69,11 @@ class Setup:
 
 
 SPEED_SETTINGS: dict[str, tuple[Setup, str]] = {
-    "default": (Setup(), "the paper's E5 layout, n-gram draft, 3 retrieved examples: every study's setting"),
-    "compact": (Setup("E4c", "none", 3), "E4c (0..100, no space after commas), no draft, 3 examples: the same "
+    "default": (Setup(name="default"), "the paper's E5 layout, n-gram draft, 3 retrieved examples: every study's setting"),
+    "compact": (Setup("E4c", "none", 3, "compact"), "E4c (0..100, no space after commas), no draft, 3 examples: the same "
                                          "examples in a third fewer tokens"),
-    "fast": (Setup("E4c", "none", 1), "E4c, no draft, 1 example (the nearest): about half compact's tokens"),
+    "fast": (Setup("E4c", "ngram", 1, "fast"), "E4c, n-gram draft, 1 example (the nearest): about half compact's "
+                                               "tokens, and the reply copies that example, so the draft is kept"),
 }
 
 
@@ -157,7 +162,7 @@ def measure(run: ThroughputRun) -> dict:
         queries = [q for qs in by_seed.values() for q in qs]
         replies = [q.reply for q in queries]
         row = {"n": n, "draft": setup.draft, "encoding": setup.encoding, "retrieve_k": setup.retrieve_k,
-               "setting": next((name for name, (u, _) in SPEED_SETTINGS.items() if u == setup), None),
+               "setting": setup.name,
                "trials": len(by_seed), "queries": len(queries), "wall_s": level["wall_s"],
                "queries_per_hour": 3600.0 * len(queries) / level["wall_s"],
                "parse_failures": sum(not q.parsed for q in queries),
@@ -216,11 +221,12 @@ def table(result: dict) -> str:
     if len(setups) > 1:
         lines += ["Replies are compared with the first row on the same prompt (layout and examples shown); a setting "
                   "that writes another prompt starts its own comparison.", ""]
+    per_hour = "trials an hour (100 queries" + (", extrapolated)" if result["queries_per_trial"] < TRIAL_QUERIES else ")")
     lines += ["| setting | layout | draft | examples | trials at a time (N) | trials | queries | wall (s) | read anew / "
-              "decoded a query | s a query | floor ratio | queries an hour | trials an hour (100 queries, "
-              "extrapolated) | x first row | replies identical to the first row on this prompt | first differing "
-              "query, per trial | mean abs action difference, same prompt |",
-              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+              f"decoded a query | s a query | floor ratio | draft acceptance | queries an hour | {per_hour} | x first row "
+              "| replies identical to the first row on this prompt | first differing query, per trial | mean abs action "
+              "difference, same prompt |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for row in result["levels"]:
         same = "-" if row["identical_to_first"] is None else f"{row['identical_to_first']:.2f}"
         parted = ", ".join("none" if i is None else str(i) for i in row["first_difference"])
@@ -228,6 +234,12 @@ def table(result: dict) -> str:
         lines.append(f"| {row.get('setting') or '-'} | {row['encoding']} | {row['draft']} | {row['retrieve_k']} | "
                      f"{row['n']} | {row['trials']} | {row['queries']} | {row['wall_s']:.0f} | "
                      f"{row['read_tokens']:.0f} / {row['decoded_tokens']:.0f} | {row['latency_mean_s']:.2f} | "
-                     f"{row['latency_mean_s'] / row['floor_s']:.2f} | {row['queries_per_hour']:.0f} | "
+                     f"{row['latency_mean_s'] / row['floor_s']:.2f} | {_acceptance(row)} | "
+                     f"{row['queries_per_hour']:.0f} | "
                      f"{row['trials_per_hour']:.2f} | {row['speedup']:.2f} | {same} | {parted} | {diff} |")
     return "\n".join(lines)
+
+
+def _acceptance(row: dict) -> str:
+    """The share of drafted tokens kept, or '-' where nothing was drafted."""
+    return "-" if row.get("draft_acceptance") is None else f"{row['draft_acceptance']:.2f}"

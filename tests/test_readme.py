@@ -102,7 +102,7 @@ ADAPT: dict[str, tuple[list[str], dict[str, str]] | str] = {
         "draft settings",
     "bench throughput --llm qwen2.5-coder-1.5b --settings default fast --concurrency 1":
         "runs in tests/test_lockstep.py on the embedded model: the default and fast settings side by side",
-    "bench throughput --llm qwen2.5-coder-1.5b --settings default compact fast --concurrency 1 --queries 10 --threads 2":
+    "bench throughput --llm qwen2.5-coder-1.5b --settings default fast --concurrency 1 --queries 100 --threads 2":
         "runs in tests/test_lockstep.py on the embedded model: the default and fast settings side by side",
 }
 

@@ -20,7 +20,7 @@ def cmd_throughput(args) -> int:
     require_models([args.llm])
     chosen = [SPEED_SETTINGS[name][0] for name in args.settings] if args.settings \
         else [Setup(encoding=args.encoding or Setup.encoding)]
-    drafts = args.drafts or ([None] if args.settings else [Setup.draft])  # None: the setting's own draft
+    drafts = args.drafts or [None]  # None: each setup's own draft
     setups = tuple(u if d is None else dataclasses.replace(u, draft=d) for u in chosen for d in drafts)
     run = ThroughputRun(model=args.llm, strategy=args.prompt_strategy, concurrency=tuple(args.concurrency),
                         queries=args.queries, threads=args.threads, setups=setups)

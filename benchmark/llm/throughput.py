@@ -177,10 +177,8 @@ def measure(run: ThroughputRun) -> dict:
               f"({len(queries)} queries in {level['wall_s']:.0f} s)", file=sys.stderr, flush=True)
     for row in levels:
         row["speedup"] = row["queries_per_hour"] / levels[0]["queries_per_hour"]
-    setups = list(dict.fromkeys(run.setups))
-    return {"model": run.model, "strategy": run.strategy, "encoding": setups[0].encoding,
-            "queries_per_trial": run.queries, "rates": rates, "levels": levels, "threads": run.threads,
-            "drafts": list(dict.fromkeys(u.draft for u in setups)), "setups": [dataclasses.asdict(u) for u in setups]}
+    return {"model": run.model, "strategy": run.strategy, "queries_per_trial": run.queries, "rates": rates,
+            "levels": levels, "threads": run.threads, "setups": [dataclasses.asdict(u) for u in dict.fromkeys(run.setups)]}
 
 
 def _agreement(mine: dict, reference: dict) -> dict:
@@ -207,7 +205,7 @@ def table(result: dict) -> str:
     """The result as Markdown: the rates, then one row per setup and concurrency level, each against the first."""
     r = result["rates"]
     base = result["levels"][0]
-    setups = {(u["encoding"], u["draft"], u["retrieve_k"]) for u in result["setups"]}
+    prompts = {(u["encoding"], u["retrieve_k"]) for u in result["setups"]}
     lines = [f"{result['model']} on `{result['strategy']}` (A1, flat, MuJoCo; the paper's protocol, "
              f"{result['queries_per_trial']} LLM queries a trial). Model rates, measured in this run on a fresh model: "
              f"prefill {r['prefill_tok_s']:.0f} tokens/s (a {r['prompt_tokens']}-token takeover prompt read cold), "
@@ -218,7 +216,7 @@ def table(result: dict) -> str:
              f"{base['latency_mean_s']:.2f} s = **{base['latency_mean_s'] / base['floor_s']:.2f} x the floor**"
              + (f"; n-gram draft acceptance {base['draft_acceptance']:.2f}" if base.get("draft_acceptance") is not None
                 else "") + ".", ""]
-    if len(setups) > 1:
+    if len(prompts) > 1:
         lines += ["Replies are compared with the first row on the same prompt (layout and examples shown); a setting "
                   "that writes another prompt starts its own comparison.", ""]
     per_hour = "trials an hour (100 queries" + (", extrapolated)" if result["queries_per_trial"] < TRIAL_QUERIES else ")")

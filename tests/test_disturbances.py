@@ -156,3 +156,75 @@ def test_each_engine_screens_its_cells_on_its_own_probe_set(tmp_path):
     for cell in ("mujoco/a1/flat *", "pybullet/a1/flat *"):
         line = next(row for row in text.splitlines() if row.startswith(f"| {cell} |"))
         assert "skill " in line and "gain +0.00 [+0.00, +0.00]" in line, line
+
+
+def test_a_disturbed_probe_cell_walks_its_undisturbed_twin_until_the_takeover():
+    """`bench probe --make --cells a1/flat/weak_motors`: the seed policy walks the undisturbed walk's pairs up to and
+    including the takeover's, then answers a weakened body (other observations and actions)."""
+    from benchmark.evaluate.probe import ProbeSetConfig, make_probe_set
+
+    probe = make_probe_set(ProbeSetConfig(cells=("a1/flat", "a1/flat/weak_motors"), rollouts=1, items=5),
+                           progress=lambda _: None)
+    plain, weak = probe.walks
+    assert probe.cells == ["a1/flat", "a1/flat/weak_motors"] and weak.robot == "a1"
+    first = plain.first_item
+    assert np.array_equal(plain.observations[:first + 1], weak.observations[:first + 1])
+    assert not np.allclose(plain.observations[first + 2:], weak.observations[first + 2:])
+    assert not np.allclose(plain.actions[first + 2:], weak.actions[first + 2:])
+
+
+def test_a_probe_cell_that_names_no_terrain_or_disturbance_is_one_line(tmp_path):
+    import subprocess
+    import sys
+
+    for cells, message in ((["a1/flat/earthquake"], "unknown disturbance 'earthquake'; valid: none, weak_motors"),
+                           (["a1/ice"], "unknown terrain 'ice'; valid: flat, rough"),
+                           (["a1"], "expected ROBOT/TERRAIN or ROBOT/TERRAIN/DISTURBANCE")):
+        out = subprocess.run([sys.executable, "-m", "benchmark.cli", "probe", "--make", "--cells", *cells, "--out",
+                              str(tmp_path / "p.npz")], capture_output=True, text=True, timeout=120)
+        assert out.returncode == 2 and out.stderr.count("\n") == 1 and message in out.stderr, out.stderr
+    assert not (tmp_path / "p.npz").exists()
+
+
+@pytest.mark.parametrize("sim", ["mujoco", "pybullet", "newton"])
+def test_copying_misses_more_on_the_hard_tracks_probe_sets(sim):
+    """The hard track's probe stage screens each engine on its committed disturbed set: `knn` (the nearest example's
+    action) misses the seed policy's answer to weak motors by more than it misses the same engine's undisturbed walk,
+    in A1 and ANYmal alike; so a model that answers the state rather than copying can gain there."""
+    from benchmark.evaluate.probe import ProbeRun, answer_items, load_probe_set, summarize_answers
+    from benchmark.experiments.experiment import load_experiment
+    from benchmark.llm.controller import LLMSettings
+    from benchmark.llm.models import make_model
+
+    experiment = load_experiment("hard_track")
+    hard = load_probe_set(experiment.probe_set_for({"sim": sim}))
+    plain = load_probe_set(load_experiment("matrix").probe_set_for({"sim": sim}))
+    assert hard.meta["config"]["sim"] == plain.meta["config"]["sim"] == sim
+    run = ProbeRun(llm=LLMSettings(model="knn", history=50, prompt_strategy="nearest-only"))
+
+    def errors(probe, cells):
+        answers = answer_items(probe, ProbeRun(llm=run.llm, cells=cells), model=make_model("knn", cache=False))
+        return {cell: c["error"] for cell, c in summarize_answers(answers)["cells"].items()}
+
+    disturbed = errors(hard, None)
+    undisturbed = errors(plain, ("a1/flat", "anymal/flat"))
+    assert set(disturbed) == {"a1/flat/weak_motors", "anymal/flat/weaker_motors"}
+    for robot, name in (("a1", "a1/flat/weak_motors"), ("anymal", "anymal/flat/weaker_motors")):
+        assert disturbed[name] > 1.5 * undisturbed[f"{robot}/flat"], (name, disturbed, undisturbed)
+
+
+def test_the_report_screens_a_disturbed_cell_with_its_disturbed_probe_cell():
+    """probe_screen: a hard-track row (weak motors) reads the probe's a1/flat/weak_motors cell, an undisturbed row the
+    plain a1/flat cell, and neither reads the other's."""
+    import json
+
+    import pandas as pd
+
+    from benchmark.experiments.report_matrix import probe_screen
+
+    probes = pd.DataFrame([{"sim": "mujoco", "model": "m", "cell_skills": json.dumps({"a1/flat/weak_motors": 0.4}),
+                            "cell_gains": json.dumps({"a1/flat/weak_motors": [0.1, 0.05, 0.15]})}])
+    weak = probe_screen(probes, {"sim": "mujoco", "robot": "a1", "terrain": "flat", "disturbance": "weak_motors"})
+    assert weak == {"probe: m": "skill 0.40; gain +0.10 [+0.05, +0.15]"}
+    assert probe_screen(probes, {"sim": "mujoco", "robot": "a1", "terrain": "flat", "disturbance": "none"}) == {}
+    assert probe_screen(probes, {"sim": "pybullet", "robot": "a1", "terrain": "flat", "disturbance": "weak_motors"}) == {}

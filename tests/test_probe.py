@@ -170,7 +170,7 @@ def test_a_probe_file_of_another_version_or_corrupt_is_one_line(tmp_path, probe)
 
 
 def test_the_probe_set_is_made_by_a_command_and_its_digest_is_stable(tmp_path):
-    config = ProbeSetConfig(robots=("a1",), terrains=("flat",), rollouts=1, items=2)
+    config = ProbeSetConfig(cells=("a1/flat",), rollouts=1, items=2)
     one, two = make_probe_set(config, progress=lambda _: None), make_probe_set(config, progress=lambda _: None)
     assert one.digest == two.digest and one.items() == 2
     assert one.walks[0].observations.shape == (92, 33) and one.walks[0].actions.shape == (92, 12)
@@ -179,7 +179,7 @@ def test_the_probe_set_is_made_by_a_command_and_its_digest_is_stable(tmp_path):
 def test_a_probe_set_is_one_engines_and_says_which(tmp_path):
     """The same cell walked in PyBullet is another probe set (other numbers, another digest), and it names its engine;
     `--sim` without `--make` is one line, since scoring reads the engine from the set."""
-    config = ProbeSetConfig(robots=("a1",), terrains=("flat",), rollouts=1, items=2)
+    config = ProbeSetConfig(cells=("a1/flat",), rollouts=1, items=2)
     mujoco = make_probe_set(config, progress=lambda _: None)
     bullet = make_probe_set(dataclasses.replace(config, sim="pybullet"), progress=lambda _: None)
     assert (mujoco.meta["config"]["sim"], bullet.meta["config"]["sim"]) == ("mujoco", "pybullet")

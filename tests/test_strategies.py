@@ -29,7 +29,7 @@ IDX = np.arange(33)
 @pytest.fixture(scope="module")
 def walk():
     """A seed-policy walk of A1 on flat ground, made with the shipped policy, as the probe set holds one."""
-    probe = make_probe_set(ProbeSetConfig(robots=("a1",), terrains=("flat",), rollouts=1, items=3),
+    probe = make_probe_set(ProbeSetConfig(cells=("a1/flat",), rollouts=1, items=3),
                            progress=lambda line: None)
     return probe
 

@@ -29,8 +29,9 @@ def cmd_probe(args, llm_values: dict, run_values: dict, runtime: Runtime) -> int
     from benchmark.llm.controller import LLMSettings, strategy_label
 
     if args.make:
-        probe = make_probe_set(ProbeSetConfig(sim=args.sim or ProbeSetConfig.sim),
-                               progress=lambda line: print(f"bench: {line}", file=sys.stderr, flush=True))
+        config = ProbeSetConfig(sim=args.sim or ProbeSetConfig.sim,
+                                **({"cells": tuple(args.cells)} if args.cells else {}))
+        probe = make_probe_set(config, progress=lambda line: print(f"bench: {line}", file=sys.stderr, flush=True))
         path = save_probe_set(probe, Path(args.out) if args.out else DEFAULT_PROBE)
         print(f"wrote {path}: {len(probe.walks)} walks, {probe.items()} items, digest {probe.digest}")
         return 0
@@ -52,10 +53,11 @@ def cmd_probe(args, llm_values: dict, run_values: dict, runtime: Runtime) -> int
         return 0
     print(f"probe {probe.digest} ({probe.meta.get('config', {}).get('sim', 'mujoco')}): {llm.model}, {strategy_label(llm)}, history {llm.history} ({run.window}), {llm.encoding}, "
           f"{llm.observation}: {summary['items']} items in {summary['wall_s']:.0f} s")
-    print(f"{'cell':<14}{'items':>6}{'error':>8}{'skill':>8}{'within 1 step':>15}")
+    width = max(14, *(len(cell) + 2 for cell in summary["cells"]))
+    print(f"{'cell':<{width}}{'items':>6}{'error':>8}{'skill':>8}{'within 1 step':>15}")
     for cell, c in summary["cells"].items():
-        print(f"{cell:<14}{c['items']:>6}{c['error']:>8.3f}{c['skill']:>8.3f}{c['within_step']:>15.2f}")
-    print(f"{'all':<14}{summary['items']:>6}{summary['error']:>8.3f}{summary['skill']:>8.3f}"
+        print(f"{cell:<{width}}{c['items']:>6}{c['error']:>8.3f}{c['skill']:>8.3f}{c['within_step']:>15.2f}")
+    print(f"{'all':<{width}}{summary['items']:>6}{summary['error']:>8.3f}{summary['skill']:>8.3f}"
           f"{summary['within_step']:>15.2f}   skill 95% [{summary['skill_low']:.3f}, {summary['skill_high']:.3f}], "
           f"{summary['parse_failures']} parse failures, median {summary['latency_median_s']:.2f} s a query")
     same = summary.get("same_prompt")

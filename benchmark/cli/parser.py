@@ -260,7 +260,9 @@ def build_parser() -> argparse.ArgumentParser:
     add_fields(probe, LLMSettings, ["model", "url", "layout", "server", "history", *STRATEGY_FIELDS, "prompt_parts",
                                     "encoding", "observation", "constrained", "temperature"])
     add_fields(probe, ProbeRun)
-    probe.add_argument("--cells", nargs="+", default=None, metavar="ROBOT/TERRAIN", help="only these cells")
+    probe.add_argument("--cells", nargs="+", default=None, metavar="ROBOT/TERRAIN[/DISTURBANCE]",
+                       help="only these cells; with --make, the cells to walk (default a1/flat a1/rough anymal/flat "
+                            "anymal/rough), a third part walks disturbed from the takeover on, e.g. a1/flat/weak_motors")
     probe_rt = probe.add_argument_group("how the LLM runs (not part of a result's identity)")
     add_fields(probe_rt, Runtime, ["threads", "draft"])
     probe_rt.add_argument("--no-cache", action="store_true", help="do not read or write the on-disk reply cache")

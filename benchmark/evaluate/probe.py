@@ -6,7 +6,9 @@
 
 The probe set holds, per cell (A1 and ANYmal, flat and rough, MuJoCo), a few seed-policy walks
 under the paper's fixed command: the 33-dim LLM observation and the seed action of every control
-step from the seed policy's start. An *item* is one step after the takeover (10 s): its history is
+step from the seed policy's start. A cell named ROBOT/TERRAIN/DISTURBANCE walks disturbed from the
+takeover on (`benchmark.trial.disturbances`; the hard track): its items ask for the seed policy's
+answer to a body or a shove the prompt's examples never showed. An *item* is one step after the takeover (10 s): its history is
 the pairs before it, its input the current observation, its label the seed policy's action. Items
 are numbers, not text, so any prompt setting renders them (history, encoding, observation choice,
 description parts, layout). Every model answers through the closed loop's own path: the same
@@ -50,11 +52,13 @@ from benchmark.llm.prompt import build_prompt, describe_robot
 from benchmark.llm.reference import HoldModel, knn_answer
 from benchmark.llm.replies import parse_reply, reply_constraint
 from benchmark.trial.cell import make_cell
+from benchmark.trial.disturbances import DISTURBANCES
 from benchmark.trial.observation import llm_observation
 from benchmark.trial.policies import seed_policy_path
 from benchmark.trial.resources import Runtime
 from benchmark.trial.trials import TrialHooks, run_cell
 from robots import load_robot
+from sims.terrain import TERRAINS
 
 PROBE_VERSION = 1
 DEFAULT_PROBE = Path(__file__).parent / "data" / f"probe-v{PROBE_VERSION}.npz"
@@ -70,13 +74,31 @@ class ProbeError(ValueError):
 class ProbeSetConfig:
     """How the probe set is made (`bench probe --make`)."""
 
-    robots: tuple[str, ...] = ("a1", "anymal")
-    terrains: tuple[str, ...] = ("flat", "rough")
+    cells: tuple[str, ...] = ("a1/flat", "a1/rough", "anymal/flat", "anymal/rough")  # ROBOT/TERRAIN[/DISTURBANCE]
     sim: str = "mujoco"
     rollouts: int = 3  # walks per cell (seeds 0, 1, ...)
     items: int = 10  # consecutive items per walk, from the takeover on
     seed_start: float = 1.0  # s: the seed policy starts walking (the paper's protocol)
     takeover: float = 10.0  # s: the first item (the LLM's takeover in the paper's protocol)
+
+    def __post_init__(self) -> None:
+        for name in self.cells:
+            probe_cell(name)
+
+
+def probe_cell(name: str) -> tuple[str, str, str]:
+    """(robot, terrain, disturbance) of a probe cell's name, ROBOT/TERRAIN or ROBOT/TERRAIN/DISTURBANCE; a name
+    that is neither, or names an unknown terrain or disturbance, is a ProbeError."""
+    parts = name.split("/")
+    if len(parts) not in (2, 3) or not all(parts):
+        raise ProbeError(f"probe cell '{name}': expected ROBOT/TERRAIN or ROBOT/TERRAIN/DISTURBANCE, e.g. a1/flat or "
+                         "a1/flat/weak_motors")
+    robot, terrain, disturbance = (*parts, "none") if len(parts) == 2 else parts
+    if terrain not in TERRAINS:
+        raise ProbeError(f"probe cell '{name}': unknown terrain '{terrain}'; valid: {', '.join(TERRAINS)}")
+    if disturbance not in DISTURBANCES:
+        raise ProbeError(f"probe cell '{name}': unknown disturbance '{disturbance}'; valid: {', '.join(DISTURBANCES)}")
+    return robot, terrain, disturbance
 
 
 @dataclass(frozen=True)
@@ -131,26 +153,26 @@ def make_probe_set(config: ProbeSetConfig = ProbeSetConfig(), progress: Callable
     first_item = int(round(config.takeover / CONTROL_DT)) - start_step
     duration = config.takeover + config.items * CONTROL_DT
     walks, policies = [], {}
-    for robot in config.robots:
+    for name in config.cells:
+        robot, terrain, disturbance = probe_cell(name)
         path = seed_policy_path(load_robot(robot))
         policies[robot] = hashlib.sha256(path.read_bytes()).hexdigest()
-        for terrain in config.terrains:
-            cell = make_cell({"sim": config.sim, "robot": robot, "terrain": terrain, "policy": "rl",
-                              "seed_start": config.seed_start, "duration": duration})
-            kept, seed = 0, 0
-            while kept < config.rollouts:  # a walk that falls is skipped: items need a walking robot
-                if seed >= 4 * config.rollouts:
-                    raise ProbeError(f"the seed policy fell in {seed - kept} of {seed} walks of {robot}/{terrain}; "
-                                     "a probe set needs walks that do not fall")
-                pairs = _Pairs(start_step)
-                result = run_cell(cell, [seed], hooks=[pairs])[0]
-                if result.fall_time is None:
-                    walks.append(Walk(f"{robot}/{terrain}", seed, np.array(pairs.observations),
-                                      np.array(pairs.actions), first_item))
-                    kept += 1
-                progress(f"probe set: {robot}/{terrain} seed {seed}: "
-                         + (f"{len(pairs.actions)} pairs" if result.fall_time is None else "fell, skipped"))
-                seed += 1
+        cell = make_cell({"sim": config.sim, "robot": robot, "terrain": terrain, "policy": "rl",
+                          "seed_start": config.seed_start, "llm_after": config.takeover,
+                          "disturbance": disturbance, "duration": duration})
+        kept, seed = 0, 0
+        while kept < config.rollouts:  # a walk that falls is skipped: items need a walking robot
+            if seed >= 4 * config.rollouts:
+                raise ProbeError(f"the seed policy fell in {seed - kept} of {seed} walks of {name}; "
+                                 "a probe set needs walks that do not fall")
+            pairs = _Pairs(start_step)
+            result = run_cell(cell, [seed], hooks=[pairs])[0]
+            if result.fall_time is None:
+                walks.append(Walk(name, seed, np.array(pairs.observations), np.array(pairs.actions), first_item))
+                kept += 1
+            progress(f"probe set: {name} seed {seed}: "
+                     + (f"{len(pairs.actions)} pairs" if result.fall_time is None else "fell, skipped"))
+            seed += 1
     meta = {"version": PROBE_VERSION, "config": dataclasses.asdict(config), "seed_policy_sha256": policies}
     return ProbeSet(tuple(walks), meta, _digest(walks, meta))
 

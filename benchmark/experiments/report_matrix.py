@@ -118,11 +118,13 @@ def matrix_figure(rows: pd.DataFrame, path: Path, title: str) -> Path:
 
 
 def probe_screen(probes: pd.DataFrame, key: dict) -> dict:
-    """Each probed model's teacher-forced skill and gain over the same prompt's trivial answers in one undisturbed
-    cell (its engine's probe set, `cell_skills` and `cell_gains` of the probe rows); {} where none reaches it."""
-    if probes is None or probes.empty or "cell_gains" not in probes or key.get("disturbance", "none") != "none":
+    """Each probed model's teacher-forced skill and gain over the same prompt's trivial answers in one cell (its
+    engine's probe set, `cell_skills` and `cell_gains` of the probe rows; a disturbed cell's probe cell is named
+    ROBOT/TERRAIN/DISTURBANCE); {} where none reaches it."""
+    if probes is None or probes.empty or "cell_gains" not in probes:
         return {}
-    out, name = {}, f"{key.get('robot')}/{key.get('terrain')}"
+    disturbance = key.get("disturbance") or "none"
+    out, name = {}, f"{key.get('robot')}/{key.get('terrain')}" + ("" if disturbance == "none" else f"/{disturbance}")
     for r in probes.itertuples():
         if getattr(r, "sim", None) != key.get("sim") or not isinstance(r.cell_gains, str):
             continue

@@ -228,3 +228,18 @@ def test_the_report_screens_a_disturbed_cell_with_its_disturbed_probe_cell():
     assert weak == {"probe: m": "skill 0.40; gain +0.10 [+0.05, +0.15]"}
     assert probe_screen(probes, {"sim": "mujoco", "robot": "a1", "terrain": "flat", "disturbance": "none"}) == {}
     assert probe_screen(probes, {"sim": "pybullet", "robot": "a1", "terrain": "flat", "disturbance": "weak_motors"}) == {}
+
+
+def test_the_nwt_gain_pairs_seeds_where_success_cannot_move():
+    """Both fall on every seed (success gain 0): the NWT gain still pairs each seed's walking fraction, only over the
+    seeds both ran."""
+    import pandas as pd
+
+    from benchmark.experiments.report_matrix import paired_gain
+
+    model = pd.DataFrame({"seed": [0, 1, 2, 3], "success": [False] * 4, "nwt": [0.10, 0.06, 0.51, 0.90]})
+    trivial = pd.DataFrame({"seed": [0, 1, 2], "success": [False] * 3, "nwt": [0.05, 0.06, 0.20]})
+    rng = np.random.default_rng(0)
+    assert paired_gain(model, trivial, rng)[:1] + paired_gain(model, trivial, rng)[3:] == (0.0, 3)
+    gain, low, high, n = paired_gain(model, trivial, rng, "nwt")
+    assert n == 3 and gain == pytest.approx((0.05 + 0.0 + 0.31) / 3) and 0.0 <= low <= gain <= high <= 0.31

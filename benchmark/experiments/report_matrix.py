@@ -3,8 +3,8 @@
 For an experiment whose grid crosses cells (engine, robot, terrain, disturbance) with controllers that include
 the seed policy's action through the text channel (`oracle`) and the walking prompt's trivial answers
 (`knn_nearest_only`, `hold_nearest_only`): a figure of success per cell and controller with Wilson intervals,
-a table per cell with each language model's closed-loop gain over the better trivial answer (success paired
-over the same seeds, bootstrap 95% interval) and its speed, and the hard track: the cells where `oracle` walks
+a table per cell with each language model's closed-loop gain over the better trivial answer (success, and NWT,
+paired over the same seeds, bootstrap 95% intervals) and its speed, and the hard track: the cells where `oracle` walks
 (success >= 0.9) and both trivial answers fail (< 0.6). Trials whose seed phase fell before the takeover are
 left out of every rate here and counted apart.
 """
@@ -43,13 +43,15 @@ def cell_label(key: tuple, axes: list[str]) -> str:
     return "/".join(str(values[a]) for a in axes if not (a == "disturbance" and values[a] == "none")) + (" *" if paper else "")
 
 
-def _success_by_seed(trials: pd.DataFrame) -> pd.Series:
-    return trials.set_index("seed")["success"].astype(float)
+def _by_seed(trials: pd.DataFrame, metric: str) -> pd.Series:
+    return trials.set_index("seed")[metric].astype(float)
 
 
-def paired_gain(model: pd.DataFrame, trivial: pd.DataFrame, rng: np.random.Generator) -> tuple[float, float, float, int]:
-    """Mean success difference over the seeds both ran, with a bootstrap 95% interval, and the seed count."""
-    a, b = _success_by_seed(model), _success_by_seed(trivial)
+def paired_gain(model: pd.DataFrame, trivial: pd.DataFrame, rng: np.random.Generator,
+                metric: str = "success") -> tuple[float, float, float, int]:
+    """Mean difference of `metric` (success, or NWT) over the seeds both ran, with a bootstrap 95% interval, and the
+    seed count."""
+    a, b = _by_seed(model, metric), _by_seed(trivial, metric)
     seeds = a.index.intersection(b.index)
     if seeds.empty:
         return float("nan"), float("nan"), float("nan"), 0
@@ -169,6 +171,8 @@ def matrix_section(group: pd.DataFrame, out: Path, name: str, title: str,
             if best is not None:
                 gain, low, high, n = paired_gain(m["trials"], best["trials"], rng)
                 text += f"; gain {gain:+.2f} [{low:+.2f}, {high:+.2f}] over {n} seeds"
+                gain, low, high, n = paired_gain(m["trials"], best["trials"], rng, "nwt")
+                text += f" (NWT {gain:+.2f} [{low:+.2f}, {high:+.2f}])"
             if not np.isnan(m["s_query"]):
                 text += f"; {m['s_query']:.1f} s a query, {3600 / m['trial_s']:.1f} trials an hour"
             entry[model] = text
@@ -179,7 +183,8 @@ def matrix_section(group: pd.DataFrame, out: Path, name: str, title: str,
              "Success counts only trials whose seed phase reached the takeover; those that fell before it are counted "
              "apart (the controller under test never acted). The gain is each model's success minus the better of the "
              "walking prompt's trivial answers (`knn`, `hold` on nearest-only), paired over the seeds both ran, with a "
-             "bootstrap 95% interval. Speed: seconds a query (live queries) and trials an hour (median trial). "
+             "bootstrap 95% interval; in brackets the same for NWT (the fraction of the model's phase it walked), "
+             "which still moves where both fall every time. Speed: seconds a query (live queries) and trials an hour (median trial). "
              "`*` marks the paper's cells (A1 flat and rough, ANYmal flat). A model row that says `not run` is a "
              "partial store's gap, not a result. `probe:` columns screen a cell teacher-forced on its engine's probe "
              "set: skill, and the gain over the same prompt's trivial answers with its paired 95% interval (at or "

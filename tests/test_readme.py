@@ -63,6 +63,9 @@ ADAPT: dict[str, tuple[list[str], dict[str, str]] | str] = {
     "bench sweep matrix --only controller=qwen15_nearest_only --seeds 5": (["--dry-run"], {}),
     "bench sweep walking_normalization --dry-run": ([], {}),
     "bench sweep matrix --stage probe --threads 2": (["--dry-run"], {}),
+    "bench sweep hard_track --stage probe --threads 2": (["--dry-run"], {}),
+    "bench probe --make --sim mujoco --cells a1/flat/weak_motors anymal/flat/weaker_motors --out probe_hard_mujoco.npz":
+        ([], {}),
     "bench probe --make --sim pybullet --out probe_pybullet.npz": "walks 12 seed-policy trials; tests/test_probe.py "
                                                                   "makes a one-walk PyBullet set and scores it",
     "bench probe --probe probe_pybullet.npz --llm qwen2.5-coder-1.5b --prompt-strategy nearest-only --history 50":

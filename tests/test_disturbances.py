@@ -200,10 +200,10 @@ def test_copying_misses_more_on_the_hard_tracks_probe_sets(sim):
     hard = load_probe_set(experiment.probe_set_for({"sim": sim}))
     plain = load_probe_set(load_experiment("matrix").probe_set_for({"sim": sim}))
     assert hard.meta["config"]["sim"] == plain.meta["config"]["sim"] == sim
-    run = ProbeRun(llm=LLMSettings(model="knn", history=50, prompt_strategy="nearest-only"))
+    llm = LLMSettings(model="knn", history=50, prompt_strategy="nearest-only")
 
     def errors(probe, cells):
-        answers = answer_items(probe, ProbeRun(llm=run.llm, cells=cells), model=make_model("knn", cache=False))
+        answers = answer_items(probe, ProbeRun(llm=llm, cells=cells), model=make_model("knn", cache=False))
         return {cell: c["error"] for cell, c in summarize_answers(answers)["cells"].items()}
 
     disturbed = errors(hard, None)
@@ -227,7 +227,8 @@ def test_the_report_screens_a_disturbed_cell_with_its_disturbed_probe_cell():
     weak = probe_screen(probes, {"sim": "mujoco", "robot": "a1", "terrain": "flat", "disturbance": "weak_motors"})
     assert weak == {"probe: m": "skill 0.40; gain +0.10 [+0.05, +0.15]"}
     assert probe_screen(probes, {"sim": "mujoco", "robot": "a1", "terrain": "flat", "disturbance": "none"}) == {}
-    assert probe_screen(probes, {"sim": "pybullet", "robot": "a1", "terrain": "flat", "disturbance": "weak_motors"}) == {}
+    elsewhere = {"sim": "pybullet", "robot": "a1", "terrain": "flat", "disturbance": "weak_motors"}
+    assert probe_screen(probes, elsewhere) == {}
 
 
 def test_the_nwt_gain_pairs_seeds_where_success_cannot_move():

@@ -220,7 +220,8 @@ def load_experiment(name_or_path: str) -> Experiment:
 
 
 PROBE_KEYS = ("grid", "cells", "window", "items", "draft", "probe_set")
-PROBE_IGNORES = ("sim", "robot", "terrain", "terrain_seed", "policy", "duration", "heading_hold", "disturbance")  # the probe set's
+# cell settings the probe set fixes (its engine, walks and disturbance), not the prompt
+PROBE_IGNORES = ("sim", "robot", "terrain", "terrain_seed", "policy", "duration", "heading_hold", "disturbance")
 
 
 def _probe_table(path: Path, probe: dict, variants: dict) -> dict:

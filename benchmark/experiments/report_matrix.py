@@ -125,7 +125,7 @@ def probe_screen(probes: pd.DataFrame, key: dict) -> dict:
     ROBOT/TERRAIN/DISTURBANCE); {} where none reaches it."""
     if probes is None or probes.empty or "cell_gains" not in probes:
         return {}
-    disturbance = key.get("disturbance") or "none"
+    disturbance = key.get("disturbance") or "none"  # named as probe.probe_cell reads it
     out, name = {}, f"{key.get('robot')}/{key.get('terrain')}" + ("" if disturbance == "none" else f"/{disturbance}")
     for r in probes.itertuples():
         if getattr(r, "sim", None) != key.get("sim") or not isinstance(r.cell_gains, str):
@@ -184,7 +184,8 @@ def matrix_section(group: pd.DataFrame, out: Path, name: str, title: str,
              "apart (the controller under test never acted). The gain is each model's success minus the better of the "
              "walking prompt's trivial answers (`knn`, `hold` on nearest-only), paired over the seeds both ran, with a "
              "bootstrap 95% interval; in brackets the same for NWT (the fraction of the model's phase it walked), "
-             "which still moves where both fall every time. Speed: seconds a query (live queries) and trials an hour (median trial). "
+             "which still moves where both fall every time. Speed: seconds a query (live queries) and trials an hour "
+             "(median trial). "
              "`*` marks the paper's cells (A1 flat and rough, ANYmal flat). A model row that says `not run` is a "
              "partial store's gap, not a result. `probe:` columns screen a cell teacher-forced on its engine's probe "
              "set: skill, and the gain over the same prompt's trivial answers with its paired 95% interval (at or "

@@ -180,3 +180,51 @@ def test_a_finding_holds_fails_or_cannot_tell_by_its_paired_interval():
     assert judge(trials([0, 0, 0, 0, 0]), trials([0, 0, 0, 0, 0]), rng)[1] == "cannot tell: neither walks at n = 5"
     assert judge(trials([1, 0, 1, 0, 1]), trials([0, 1, 1, 0, 1]), rng)[1] == "cannot tell at n = 5"
     assert judge(trials([1, 1]), trials([]), rng)[1] == "not run yet"
+
+
+def test_the_papers_findings_are_read_teacher_forced_from_the_probe_rows():
+    """The observation ablation's probe stage with `hold` in the model's place, 10 items of the committed set each:
+    without inputs (O1) retrieval cannot find the examples that match, so "O5 > O1" holds teacher-forced for it and
+    for the prompt's own `knn`, the figures are the rows' skills, and a finding with no O2 row is not run yet."""
+    import pandas as pd
+
+    from benchmark.evaluate.probe import summarize_answers
+    from benchmark.evaluate.study import probe_row
+    from benchmark.experiments.report_ablation import probe_findings_table
+
+    experiment = load_experiment("walking_observation")
+    jobs = {j.labels["observation"]: j for j in probe_jobs(experiment, "") if j.llm.model == "qwen2.5-coder-1.5b"}
+    probe, rows = load_probe_set(experiment.probe_set), []
+    for value in ("O1", "O5"):
+        job = dataclasses.replace(jobs[value], llm=dataclasses.replace(jobs[value].llm, model="hold"), items=10,
+                                  labels={**jobs[value].labels, "model": "hold"})
+        answers = answer_items(probe, ProbeRun(llm=job.llm, window=job.window, items=10, cells=job.cells))
+        rows.append(probe_row(job, summarize_answers(answers), answers))
+    table = probe_findings_table(pd.DataFrame(rows), experiment).set_index(["compared", "answers"])
+    verdicts, model = table["here"].to_dict(), "hold (the prompt's last example line)"
+    assert verdicts[("O5 > O1", model)] == verdicts[("O5 > O1", "knn (the prompt's nearest example)")] == "holds"
+    figures = table.loc[("O5 > O1", model), "probe skill: better vs worse, difference [95%]"]
+    o5, o1 = (next(r["skill"] for r in rows if r["observation"] == v) for v in ("O5", "O1"))
+    assert figures.startswith(f"{o5:.3f} vs {o1:.3f}: {o5 - o1:+.3f} [")
+    assert verdicts[("O5 > O2", model)] == "not run yet"
+
+
+def test_a_teacher_forced_finding_pairs_items_where_it_can():
+    """The item rule on made-up errors (a unit test of the rule alone): the same items are paired, identical
+    answers fail, other items (a history length that moves the first item) are compared unpaired."""
+    import pandas as pd
+
+    from benchmark.experiments.report_ablation import judge_items
+
+    def row(errors, hold):
+        return pd.Series({"item_errors": np.array(errors, float), "item_hold_errors": np.array(hold, float),
+                          "probe_cells": "a1/flat"})
+
+    hold = [1.0] * 20
+    assert judge_items(row([0.2] * 20, hold), row([0.9] * 20, hold))[1] == "holds"
+    assert judge_items(row([0.9] * 20, hold), row([0.2] * 20, hold))[1] == "fails (reversed)"
+    assert judge_items(row([0.5] * 20, hold), row([0.5] * 20, hold))[1] == "fails: the same answers"
+    noisy = [0.4, 0.6] * 10
+    assert judge_items(row(noisy, hold), row(noisy[::-1], hold))[1] == "cannot tell at 20 items"
+    figures, verdict = judge_items(row([0.2] * 20, hold), row([0.9] * 20, [2.0] * 20))
+    assert verdict == "holds" and figures.endswith("(unpaired: other items)") and figures.startswith("0.800 vs 0.550")

@@ -46,6 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from benchmark.common.settings import SettingError, setting
+from benchmark.common.skill import item_resamples, skill, skill_difference
 from benchmark.llm.controller import CONTROL_DT, LLMSettings, _new_model
 from benchmark.llm.encodings import get_encoding
 from benchmark.llm.prompt import build_prompt, describe_robot
@@ -63,7 +64,6 @@ from sims.terrain import TERRAINS
 PROBE_VERSION = 1
 DEFAULT_PROBE = Path(__file__).parent / "data" / f"probe-v{PROBE_VERSION}.npz"
 WINDOWS = ("grow", "slide")
-BOOTSTRAP = 2000
 
 
 class ProbeError(ValueError):
@@ -409,26 +409,10 @@ def answer_walks(probe: ProbeSet, run: ProbeRun, runtime: Runtime = Runtime(), p
     return concat_answers(parts)
 
 
-def skill(errors: np.ndarray, hold_errors: np.ndarray, cells: np.ndarray) -> float:
-    """Mean over cells of 1 - mean error / mean hold error (hold 0, oracle 1)."""
-    values = [1.0 - errors[cells == c].mean() / max(hold_errors[cells == c].mean(), 1e-12) for c in np.unique(cells)]
-    return float(np.mean(values))
-
-
-def _resamples(cells: np.ndarray, seed: int = 0) -> np.ndarray:
-    """(BOOTSTRAP, N) item indices, resampled within each cell (the cells keep their weight)."""
-    rng = np.random.default_rng(seed)
-    out = np.empty((BOOTSTRAP, len(cells)), dtype=int)
-    for c in np.unique(cells):
-        where = np.flatnonzero(cells == c)
-        out[:, where] = rng.choice(where, size=(BOOTSTRAP, len(where)))
-    return out
-
-
 def bootstrap_skill(answers: ItemAnswers, seed: int = 0) -> tuple[float, float]:
     """95% percentile interval of the overall skill over items."""
     cells = np.array(answers.cells)
-    draws = [skill(answers.errors[i], answers.hold_errors[i], cells[i]) for i in _resamples(cells, seed)]
+    draws = [skill(answers.errors[i], answers.hold_errors[i], cells[i]) for i in item_resamples(cells, seed)]
     low, high = np.percentile(draws, [2.5, 97.5])
     return float(low), float(high)
 
@@ -439,7 +423,7 @@ def paired_comparison(a: ItemAnswers, b: ItemAnswers, seed: int = 0) -> float:
         raise ValueError("a paired comparison needs two runs over the same items and prompt settings")
     cells = np.array(a.cells)
     wins = [skill(a.errors[i], a.hold_errors[i], cells[i]) > skill(b.errors[i], b.hold_errors[i], cells[i])
-            for i in _resamples(cells, seed)]
+            for i in item_resamples(cells, seed)]
     return float(np.mean(wins))
 
 
@@ -447,11 +431,7 @@ def paired_gain(a: ItemAnswers, b: ItemAnswers, seed: int = 0) -> tuple[float, f
     """skill(a) - skill(b) over the same items, with its 95% paired bootstrap interval."""
     if a.cells != b.cells or not np.allclose(a.hold_errors, b.hold_errors):
         raise ValueError("a paired gain needs two runs over the same items and prompt settings")
-    cells = np.array(a.cells)
-    draws = [skill(a.errors[i], a.hold_errors[i], cells[i]) - skill(b.errors[i], b.hold_errors[i], cells[i])
-             for i in _resamples(cells, seed)]
-    low, high = np.percentile(draws, [2.5, 97.5])
-    return (skill(a.errors, a.hold_errors, cells) - skill(b.errors, b.hold_errors, cells), float(low), float(high))
+    return skill_difference(a.errors, b.errors, a.hold_errors, np.array(a.cells), seed)
 
 
 def subset(answers: ItemAnswers, cells: list[str] | tuple[str, ...]) -> ItemAnswers:
@@ -491,12 +471,9 @@ def same_prompt_gain(answers: ItemAnswers, seed: int = 0) -> dict:
     trivial = {"hold": answers.prompt_hold_errors, "knn": answers.prompt_knn_errors}
     skills = {name: skill(e, answers.hold_errors, cells) for name, e in trivial.items()}
     best = max(skills, key=lambda name: skills[name])
-    model = skill(answers.errors, answers.hold_errors, cells)
-    draws = [skill(answers.errors[i], answers.hold_errors[i], cells[i])
-             - skill(trivial[best][i], answers.hold_errors[i], cells[i]) for i in _resamples(cells, seed)]
-    low, high = np.percentile(draws, [2.5, 97.5])
+    gain, low, high = skill_difference(answers.errors, trivial[best], answers.hold_errors, cells, seed)
     return {"hold_skill": skills["hold"], "knn_skill": skills["knn"], "best": best,
-            "gain": model - skills[best], "gain_low": float(low), "gain_high": float(high)}
+            "gain": gain, "gain_low": low, "gain_high": high}
 
 
 class ProbeProgress:

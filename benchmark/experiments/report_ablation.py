@@ -16,6 +16,7 @@ import numpy as np
 import pandas as pd
 
 from benchmark.common.figures import save_figure
+from benchmark.common.skill import skill, skill_difference, unpaired_skill_difference
 from benchmark.common.tables import live_latency_mean, to_markdown, wilson
 from benchmark.experiments.experiment import Experiment
 from benchmark.experiments.report_matrix import paired_gain
@@ -148,6 +149,53 @@ def findings_table(group: pd.DataFrame, experiment: Experiment) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def judge_items(better: pd.Series, worse: pd.Series, errors: str = "item_errors") -> tuple[str, str]:
+    """(our figures, verdict) for "`better` imitates the seed policy more closely than `worse`", from two probe rows
+    of one probe cell: the skill difference with its bootstrap 95% interval, paired over items where both rows
+    scored the same items (else each row's items resampled on their own, as where a history length moves the first
+    item); `errors` names the answers judged (the model's, or the prompt's `knn`: `item_prompt_knn_errors`)."""
+    if "+" in str(better["probe_cells"]) or better["probe_cells"] != worse["probe_cells"]:
+        return "-", "cannot tell: not one probe cell"
+    a, b = (np.asarray(row[errors], dtype=float) for row in (better, worse))
+    hold, other_hold = (np.asarray(row["item_hold_errors"], dtype=float) for row in (better, worse))
+    paired = len(a) == len(b) and np.allclose(hold, other_hold)
+    cells = np.zeros(len(a))
+    d, low, high = skill_difference(a, b, hold, cells) if paired else unpaired_skill_difference(a, hold, b, other_hold)
+    figures = (f"{skill(a, hold, cells):.3f} vs {skill(b, other_hold, np.zeros(len(b))):.3f}: {d:+.3f} "
+               f"[{low:+.3f}, {high:+.3f}]" + ("" if paired else " (unpaired: other items)"))
+    if low > 0:
+        return figures, "holds"
+    if high < 0:
+        return figures, "fails (reversed)"
+    if paired and np.allclose(a, b):
+        return figures, "fails: the same answers"
+    return figures, f"cannot tell at {len(a)} items"
+
+
+def probe_findings_table(probes: pd.DataFrame, experiment: Experiment) -> pd.DataFrame:
+    """Each of the paper's findings, teacher-forced: per probe rung (and the same prompts' `knn`), the skill of the
+    variant the paper found better minus the other's, over the same items."""
+    paper = experiment.paper
+    axis, rows = paper["axis"], []
+    if probes.empty or axis not in probes or "item_errors" not in probes:
+        return pd.DataFrame(rows)
+    for finding in paper["findings"]:
+        judged, knn = [], None
+        for model in dict.fromkeys(probes["model"]):
+            mine = probes[probes["model"] == model]
+            better, worse = (mine[mine[axis].astype(str) == finding[v]] for v in ("better", "worse"))
+            if better.empty or worse.empty:
+                judged.append((MODEL_NAMES.get(model, model), ("-", "not run yet")))
+                continue
+            judged.append((MODEL_NAMES.get(model, model), judge_items(better.iloc[0], worse.iloc[0])))
+            knn = knn or judge_items(better.iloc[0], worse.iloc[0], "item_prompt_knn_errors")  # the same on every rung
+        judged += [("knn (the prompt's nearest example)", knn)] if knn else []
+        rows += [{"the paper's finding": finding["says"], "compared": f"{finding['better']} > {finding['worse']}",
+                  "answers": name, "probe skill: better vs worse, difference [95%]": ours, "here": verdict}
+                 for name, (ours, verdict) in judged]
+    return pd.DataFrame(rows)
+
+
 def ablation_figure(group: pd.DataFrame, probes: pd.DataFrame, experiment: Experiment, path: Path) -> Path:
     """Left: closed-loop success per variant (models with Wilson intervals, the trivial answers and the ceiling as
     marks, the paper's figures as black crosses). Right: probe skill per variant and rung, 95% intervals, and the
@@ -237,4 +285,17 @@ def ablation_section(group: pd.DataFrame, probes: pd.DataFrame, out: Path, name:
              "Judged on the model's success paired over the seeds both variants ran: holds when the 95% interval "
              "of the difference lies above 0, fails when it lies below 0 or both variants walk alike on every "
              "seed (and one walks), cannot tell otherwise.", "", to_markdown(findings_table(group, experiment)), "",
+             *_probe_findings_lines(probes, experiment),
              f"![{name} ablation](figures/{figure.name})", ""], [figure])
+
+
+def _probe_findings_lines(probes: pd.DataFrame, experiment: Experiment) -> list[str]:
+    table = probe_findings_table(probes, experiment)
+    if table.empty:
+        return []
+    return ["### The paper's findings, teacher-forced", "",
+            "The probe's reading of the same findings, before or beside the closed loop: does the variant the paper "
+            "found better bring the answers closer to the seed policy's action (probe skill; the difference paired "
+            "over the same items, bootstrap 95%)? Holds when its interval lies above 0, fails when "
+            "below, cannot tell otherwise. Imitating more closely is not walking: the closed loop decides.", "",
+            to_markdown(table), ""]

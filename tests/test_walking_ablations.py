@@ -210,21 +210,24 @@ def test_the_papers_findings_are_read_teacher_forced_from_the_probe_rows():
 
 
 def test_a_teacher_forced_finding_pairs_items_where_it_can():
-    """The item rule on made-up errors (a unit test of the rule alone): the same items are paired, identical
-    answers fail, other items (a history length that moves the first item) are compared unpaired."""
+    """The item rule on made-up errors (a unit test of the rule alone): rows over the same items are paired, each in
+    its own units (another number format), identical answers fail, and rows over other items (a history length that
+    moves the first item) are compared unpaired."""
     import pandas as pd
 
     from benchmark.experiments.report_ablation import judge_items
 
-    def row(errors, hold):
+    def row(errors, hold, history=50):
         return pd.Series({"item_errors": np.array(errors, float), "item_hold_errors": np.array(hold, float),
-                          "probe_cells": "a1/flat"})
+                          "probe_cells": "a1/flat", "probe_digest": "d", "window": "grow", "history": history})
 
     hold = [1.0] * 20
     assert judge_items(row([0.2] * 20, hold), row([0.9] * 20, hold))[1] == "holds"
     assert judge_items(row([0.9] * 20, hold), row([0.2] * 20, hold))[1] == "fails (reversed)"
     assert judge_items(row([0.5] * 20, hold), row([0.5] * 20, hold))[1] == "fails: the same answers"
+    assert judge_items(row([0.5] * 20, hold), row([5.0] * 20, [10.0] * 20))[1] == "fails: the same answers"
     noisy = [0.4, 0.6] * 10
     assert judge_items(row(noisy, hold), row(noisy[::-1], hold))[1] == "cannot tell at 20 items"
-    figures, verdict = judge_items(row([0.2] * 20, hold), row([0.9] * 20, [2.0] * 20))
+    figures, verdict = judge_items(row([0.2] * 20, hold), row([0.9] * 20, [2.0] * 20, history=0))
     assert verdict == "holds" and figures.endswith("(unpaired: other items)") and figures.startswith("0.800 vs 0.550")
+    assert not judge_items(row([0.2] * 20, hold), row([0.9] * 20, [2.0] * 20))[0].endswith("(unpaired: other items)")

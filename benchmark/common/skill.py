@@ -26,12 +26,14 @@ def item_resamples(cells: np.ndarray, seed: int = 0) -> np.ndarray:
 
 
 def skill_difference(errors: np.ndarray, other_errors: np.ndarray, hold_errors: np.ndarray, cells: np.ndarray,
-                     seed: int = 0) -> tuple[float, float, float]:
-    """skill(errors) - skill(other_errors) on the same items, with its paired 95% bootstrap interval."""
-    draws = [skill(errors[i], hold_errors[i], cells[i]) - skill(other_errors[i], hold_errors[i], cells[i])
+                     seed: int = 0, other_hold_errors: np.ndarray | None = None) -> tuple[float, float, float]:
+    """skill(errors) - skill(other_errors) on the same items, with its paired 95% bootstrap interval; the other run
+    may measure its errors in other units (another number format: `other_hold_errors`)."""
+    other_hold = hold_errors if other_hold_errors is None else other_hold_errors
+    draws = [skill(errors[i], hold_errors[i], cells[i]) - skill(other_errors[i], other_hold[i], cells[i])
              for i in item_resamples(cells, seed)]
     low, high = np.percentile(draws, [2.5, 97.5])
-    return skill(errors, hold_errors, cells) - skill(other_errors, hold_errors, cells), float(low), float(high)
+    return skill(errors, hold_errors, cells) - skill(other_errors, other_hold, cells), float(low), float(high)
 
 
 def unpaired_skill_difference(errors: np.ndarray, hold_errors: np.ndarray, other_errors: np.ndarray,

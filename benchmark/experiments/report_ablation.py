@@ -149,25 +149,35 @@ def findings_table(group: pd.DataFrame, experiment: Experiment) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def same_items(one: pd.Series, other: pd.Series) -> bool:
+    """Whether two probe rows scored the same items: the same probe set, cells, window and history length (the
+    history decides the first item), and as many items."""
+    keys = ("probe_digest", "probe_cells", "window", "history")
+    return all(str(one.get(k)) == str(other.get(k)) for k in keys) and len(one["item_errors"]) == len(
+        other["item_errors"])
+
+
 def judge_items(better: pd.Series, worse: pd.Series, errors: str = "item_errors") -> tuple[str, str]:
     """(our figures, verdict) for "`better` imitates the seed policy more closely than `worse`", from two probe rows
     of one probe cell: the skill difference with its bootstrap 95% interval, paired over items where both rows
-    scored the same items (else each row's items resampled on their own, as where a history length moves the first
-    item); `errors` names the answers judged (the model's, or the prompt's `knn`: `item_prompt_knn_errors`)."""
+    scored the same items (each in its own number format's units), else each row's items resampled on their own (as
+    where a history length moves the first item); `errors` names the answers judged (the model's, or the prompt's
+    `knn`: `item_prompt_knn_errors`)."""
     if "+" in str(better["probe_cells"]) or better["probe_cells"] != worse["probe_cells"]:
         return "-", "cannot tell: not one probe cell"
     a, b = (np.asarray(row[errors], dtype=float) for row in (better, worse))
     hold, other_hold = (np.asarray(row["item_hold_errors"], dtype=float) for row in (better, worse))
-    paired = len(a) == len(b) and np.allclose(hold, other_hold)
+    paired = same_items(better, worse)
     cells = np.zeros(len(a))
-    d, low, high = skill_difference(a, b, hold, cells) if paired else unpaired_skill_difference(a, hold, b, other_hold)
+    d, low, high = (skill_difference(a, b, hold, cells, other_hold_errors=other_hold) if paired else
+                    unpaired_skill_difference(a, hold, b, other_hold))
     figures = (f"{skill(a, hold, cells):.3f} vs {skill(b, other_hold, np.zeros(len(b))):.3f}: {d:+.3f} "
                f"[{low:+.3f}, {high:+.3f}]" + ("" if paired else " (unpaired: other items)"))
     if low > 0:
         return figures, "holds"
     if high < 0:
         return figures, "fails (reversed)"
-    if paired and np.allclose(a, b):
+    if paired and np.allclose(a / np.maximum(hold, 1e-12), b / np.maximum(other_hold, 1e-12)):
         return figures, "fails: the same answers"
     return figures, f"cannot tell at {len(a)} items"
 

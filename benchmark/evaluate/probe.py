@@ -9,9 +9,9 @@ under the paper's fixed command: the 33-dim LLM observation and the seed action 
 step from the seed policy's start. A cell named ROBOT/TERRAIN/DISTURBANCE walks disturbed from the
 takeover on (`benchmark.trial.disturbances`; the hard track): its items ask for the seed policy's
 answer to a body or a shove the prompt's examples never showed. An *item* is one step after the
-takeover (10 s): its history is the pairs before it, its input the current observation, its label the seed policy's action. Items
-are numbers, not text, so any prompt setting renders them (history, encoding, observation choice,
-description parts, layout). Every model answers through the closed loop's own path: the same
+takeover (10 s): its history is the pairs before it, its input the current observation, its label the seed
+policy's action. Items are numbers, not text, so any prompt setting renders them (history, encoding,
+observation choice, description parts, layout). Every model answers through the closed loop's own path: the same
 prompt, constraint, reply parsing and decoding; an unparseable reply counts as a parse failure and
 as the `hold` answer, as in closed loop.
 

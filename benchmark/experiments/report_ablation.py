@@ -110,7 +110,8 @@ def variant_table(group: pd.DataFrame, probes: pd.DataFrame, experiment: Experim
     mine = [c for c in columns if any(c.startswith(m.removesuffix("success [95%]")) for m in models) or c in (
         "tokens read / decoded a query", "s / query", "gain over the better trivial answer [95%]")]
     head = [c for c in columns if c == axis or c.startswith("paper ")]
-    return pd.DataFrame(out, columns=[*head, *mine, *[c for c in columns if c not in head and c not in mine]]).fillna("-")
+    rest = [c for c in columns if c not in head and c not in mine]
+    return pd.DataFrame(out, columns=[*head, *mine, *rest]).fillna("-")
 
 
 def judge(better: pd.DataFrame, worse: pd.DataFrame, rng: np.random.Generator) -> tuple[str, str]:
@@ -143,7 +144,8 @@ def findings_table(group: pd.DataFrame, experiment: Experiment) -> pd.DataFrame:
             mine = group[group["controller"] == model]
             ours, verdict = judge(mine[mine[axis].astype(str) == finding["better"]],
                                   mine[mine[axis].astype(str) == finding["worse"]], rng)
-            rows.append({"the paper's finding": finding["says"], "compared": f"{finding['better']} > {finding['worse']}",
+            compared = f"{finding['better']} > {finding['worse']}"
+            rows.append({"the paper's finding": finding["says"], "compared": compared,
                          "model": _name(group, experiment, model),
                          "success, paired over seeds [95%]": ours, "here": verdict})
     return pd.DataFrame(rows)
@@ -253,7 +255,8 @@ def ablation_figure(group: pd.DataFrame, probes: pd.DataFrame, experiment: Exper
             pts = [(x, r.iloc[-1]) for x, r in zip(xs, got) if len(r)]
             if pts:
                 right.bar([x + (i - (len(rungs) - 1) / 2) * w for x, _ in pts], [r["skill"] for _, r in pts], w,
-                          yerr=[[r["skill"] - r["skill_low"] for _, r in pts], [r["skill_high"] - r["skill"] for _, r in pts]],
+                          yerr=[[r["skill"] - r["skill_low"] for _, r in pts],
+                                [r["skill_high"] - r["skill"] for _, r in pts]],
                           capsize=3, label=MODEL_NAMES.get(model, model))
         trivial = [(x, probes[probes[axis].astype(str) == v][["same_prompt_hold_skill", "same_prompt_knn_skill"]]
                     .max(axis=1).max()) for x, v in zip(xs, values)]

@@ -244,3 +244,24 @@ def test_the_nwt_gain_pairs_seeds_where_success_cannot_move():
     assert paired_gain(model, trivial, rng)[:1] + paired_gain(model, trivial, rng)[3:] == (0.0, 3)
     gain, low, high, n = paired_gain(model, trivial, rng, "nwt")
     assert n == 3 and gain == pytest.approx((0.05 + 0.0 + 0.31) / 3) and 0.0 <= low <= gain <= high <= 0.31
+
+
+def test_a_cell_replayed_from_the_reply_cache_does_not_read_as_fast():
+    """Trials an hour count every cached reply at the live latency: a resumed trial (98 of 100 replies cached) costs
+    what a live one does, and a cell whose every reply came from the cache reads the latency recorded when its
+    replies were made, marked as replayed."""
+    import pandas as pd
+
+    from benchmark.experiments.report_matrix import cell_speed
+
+    live = pd.DataFrame({"latency_mean_s": [10.0, 10.0], "queries": [100, 100], "cache_hits": [0, 98],
+                         "trial_wall_s": [1010.0, 30.0], "latency_recorded_mean_s": [10.0, 10.0]})
+    speed = cell_speed(live)
+    assert speed["s_query"] == 10.0 and not speed["replayed"]
+    assert speed["trial_s"] == pytest.approx((1010.0 + 30.0 + 980.0) / 2)  # the median of two: their mean
+    replayed = pd.DataFrame({"latency_mean_s": [0.0, 0.0], "queries": [100, 100], "cache_hits": [100, 100],
+                             "trial_wall_s": [12.0, 14.0], "latency_recorded_mean_s": [9.0, 11.0]})
+    speed = cell_speed(replayed)
+    assert speed["replayed"] and speed["s_query"] == 10.0 and speed["trial_s"] == pytest.approx(1013.0)
+    old = replayed.drop(columns="latency_recorded_mean_s")  # a store from before the column: no speed, not a fast one
+    assert np.isnan(cell_speed(old)["s_query"]) and cell_speed(old)["trial_s"] == pytest.approx(13.0)

@@ -325,6 +325,9 @@ class LLMPolicy:
             "gpt4_input_tokens": float(np.mean([x.gpt4_in for x in q])),
             "gpt4_output_tokens": float(np.mean([x.gpt4_out for x in q])),
             "latency_mean_s": float(latency.mean()),
+            # every reply's latency as measured when it was made (a cached reply keeps its first measurement): what
+            # the trial would have cost live, where latency_mean_s covers the live replies only
+            "latency_recorded_mean_s": float(np.mean([x.reply.latency_s for x in q])),
             "latency_p95_s": float(np.percentile(latency, 95)),
             "realtime_factor": float(CONTROL_DT / latency.mean()) if latency.mean() > 0 else None,
             "cache_hits": sum(x.reply.cached for x in q),

@@ -83,7 +83,9 @@ def cell_speed(trials: pd.DataFrame) -> dict:
     cached replies add that latency each to its wall time, so a replayed cell does not read as fast."""
     s_query, replayed = live_latency_mean(trials), False
     if np.isnan(s_query) and "latency_recorded_mean_s" in trials and trials["latency_recorded_mean_s"].notna().any():
-        s_query, replayed = float(trials["latency_recorded_mean_s"].mean()), True
+        recorded = trials.dropna(subset=["latency_recorded_mean_s"])  # weighted by queries, as the live mean is
+        weights = recorded["queries"] if "queries" in recorded else None
+        s_query, replayed = float(np.average(recorded["latency_recorded_mean_s"], weights=weights)), True
     if "trial_wall_s" not in trials or trials.empty:
         return {"s_query": s_query, "trial_s": float("nan"), "replayed": replayed}
     cached = trials["cache_hits"].fillna(0) if "cache_hits" in trials else 0.0

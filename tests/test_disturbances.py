@@ -265,3 +265,20 @@ def test_a_cell_replayed_from_the_reply_cache_does_not_read_as_fast():
     assert speed["replayed"] and speed["s_query"] == 10.0 and speed["trial_s"] == pytest.approx(1013.0)
     old = replayed.drop(columns="latency_recorded_mean_s")  # a store from before the column: no speed, not a fast one
     assert np.isnan(cell_speed(old)["s_query"]) and cell_speed(old)["trial_s"] == pytest.approx(13.0)
+
+
+def test_a_latency_measured_beside_other_work_is_marked_shared():
+    """A live trial that ended with the load above its cores (other work ran beside it) marks its cell's speed;
+    a trial alone, a replayed one (no live query) or one stored before the core count was recorded does not."""
+    import pandas as pd
+
+    from benchmark.common.tables import shared_machine
+    from benchmark.experiments.report_matrix import cell_speed
+
+    alone = pd.DataFrame({"latency_mean_s": [12.0, 12.5], "queries": [100, 100], "load_1m": [2.0, 2.1],
+                          "cores": [2, 2], "trial_wall_s": [1200.0, 1250.0]})
+    assert shared_machine(alone) == "" and cell_speed(alone)["shared"] == ""
+    beside = alone.assign(load_1m=[2.0, 3.9])
+    assert shared_machine(beside) == " (shared: load 3.9 on 2 cores)" == cell_speed(beside)["shared"]
+    assert shared_machine(beside.assign(latency_mean_s=[0.0, 0.0])) == ""  # replayed: no latency measured here
+    assert shared_machine(beside.drop(columns="cores")) == ""

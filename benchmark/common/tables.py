@@ -33,6 +33,19 @@ def live_latency_mean(trials: pd.DataFrame) -> float:
     return float((latency.fillna(0.0) * live).sum() / live.sum()) if live.sum() > 0 else float("nan")
 
 
+def shared_machine(trials: pd.DataFrame) -> str:
+    """' (shared: load L on C cores)' where a trial that queried live ended with the machine's load above its cores
+    by half a core or more (other work ran beside it, so its latencies read high); "" otherwise or where the store
+    has no core count (trials stored before it was recorded)."""
+    if not {"load_1m", "cores"} <= set(trials) or "latency_mean_s" not in trials:
+        return ""
+    live = trials[trials["latency_mean_s"].astype(float) > 0]
+    over = live[live["load_1m"].astype(float) > live["cores"].astype(float) + 0.5]
+    if over.empty:
+        return ""
+    return f" (shared: load {over['load_1m'].max():.1f} on {int(over['cores'].iloc[0])} cores)"
+
+
 def to_markdown(table: pd.DataFrame) -> str:
     def cell(v) -> str:
         if isinstance(v, float):

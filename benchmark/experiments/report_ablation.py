@@ -17,7 +17,7 @@ import pandas as pd
 
 from benchmark.common.figures import save_figure
 from benchmark.common.skill import skill, skill_difference, unpaired_skill_difference
-from benchmark.common.tables import live_latency_mean, to_markdown, wilson
+from benchmark.common.tables import live_latency_mean, shared_machine, to_markdown, wilson
 from benchmark.experiments.experiment import Experiment
 from benchmark.experiments.report_matrix import paired_gain
 from benchmark.experiments.report_prompting import MODEL_NAMES
@@ -94,7 +94,7 @@ def variant_table(group: pd.DataFrame, probes: pd.DataFrame, experiment: Experim
             if "read_tokens" in trials and trials["read_tokens"].notna().any():  # what a language model read
                 row["tokens read / decoded a query"] = (f"{trials['read_tokens'].mean():.0f} / "
                                                         f"{trials['output_tokens'].mean():.0f}")
-                row["s / query"] = f"{live_latency_mean(trials):.1f}"
+                row["s / query"] = f"{live_latency_mean(trials):.1f}{shared_machine(trials)}"
             if best is not None:
                 d, low, high, n = paired_gain(trials, best, rng)
                 row["gain over the better trivial answer [95%]"] = (

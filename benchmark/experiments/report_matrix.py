@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from benchmark.common.figures import save_figure
-from benchmark.common.tables import fell_before_takeover, live_latency_mean, to_markdown, wilson
+from benchmark.common.tables import fell_before_takeover, live_latency_mean, shared_machine, to_markdown, wilson
 from benchmark.llm.reference import REFERENCE_KINDS
 
 CEILING, TRIVIAL = "oracle", ("knn_nearest_only", "hold_nearest_only")
@@ -87,10 +87,10 @@ def cell_speed(trials: pd.DataFrame) -> dict:
         weights = recorded["queries"] if "queries" in recorded else None
         s_query, replayed = float(np.average(recorded["latency_recorded_mean_s"], weights=weights)), True
     if "trial_wall_s" not in trials or trials.empty:
-        return {"s_query": s_query, "trial_s": float("nan"), "replayed": replayed}
+        return {"s_query": s_query, "trial_s": float("nan"), "replayed": replayed, "shared": shared_machine(trials)}
     cached = trials["cache_hits"].fillna(0) if "cache_hits" in trials else 0.0
     wall = trials["trial_wall_s"] + (cached * s_query if not np.isnan(s_query) else 0.0)
-    return {"s_query": s_query, "trial_s": float(wall.median()), "replayed": replayed}
+    return {"s_query": s_query, "trial_s": float(wall.median()), "replayed": replayed, "shared": shared_machine(trials)}
 
 
 def _rate(successes: int, n: int) -> str:
@@ -191,6 +191,7 @@ def matrix_section(group: pd.DataFrame, out: Path, name: str, title: str,
             if not np.isnan(m["s_query"]):
                 text += f"; {m['s_query']:.1f} s a query, {3600 / m['trial_s']:.1f} trials an hour"
                 text += " (replayed from the reply cache: as first measured)" if m["replayed"] else ""
+                text += m["shared"]
             entry[model] = text
         entry.update(probe_screen(probes, r["key"].iloc[0]))
         table.append(entry)

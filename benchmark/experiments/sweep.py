@@ -93,6 +93,7 @@ class _Worker:
                 "seed_policy_sha256": seed_policy, "terrain_sha256": terrain_digest(cell.terrain, cell.terrain_seed),
                 "traj_joint_pos": trajectory.joint_pos,
                 "load_1m": os.getloadavg()[0],  # the machine's load as the trial ended: measured latencies need it
+                "cores": os.cpu_count(),  # what that load is measured against (a load above it: other work shared)
                 "trial_wall_s": time.perf_counter() - started,
                 "traj_joint_target": trajectory.joint_target, "traj_base_x": trajectory.base_x, "worker": f"{socket.gethostname()}:{os.getpid()}"}
 

@@ -43,7 +43,8 @@ def shared_machine(trials: pd.DataFrame) -> str:
     over = live[live["load_1m"].astype(float) > live["cores"].astype(float) + 0.5]
     if over.empty:
         return ""
-    return f" (shared: load {over['load_1m'].max():.1f} on {int(over['cores'].iloc[0])} cores)"
+    worst = over.loc[over["load_1m"].astype(float).idxmax()]
+    return f" (shared: load {float(worst['load_1m']):.1f} on {int(worst['cores'])} cores)"
 
 
 def to_markdown(table: pd.DataFrame) -> str:

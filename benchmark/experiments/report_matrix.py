@@ -81,16 +81,16 @@ def cell_speed(trials: pd.DataFrame) -> dict:
     """Seconds a query and a trial's wall time as if every reply were live: the live replies' mean latency, or,
     where every reply came from the reply cache, the latency recorded when they were made (`replayed`); a trial's
     cached replies add that latency each to its wall time, so a replayed cell does not read as fast."""
-    s_query, replayed = live_latency_mean(trials), False
+    s_query, replayed, shared = live_latency_mean(trials), False, shared_machine(trials)
     if np.isnan(s_query) and "latency_recorded_mean_s" in trials and trials["latency_recorded_mean_s"].notna().any():
         recorded = trials.dropna(subset=["latency_recorded_mean_s"])  # weighted by queries, as the live mean is
         weights = recorded["queries"] if "queries" in recorded else None
         s_query, replayed = float(np.average(recorded["latency_recorded_mean_s"], weights=weights)), True
     if "trial_wall_s" not in trials or trials.empty:
-        return {"s_query": s_query, "trial_s": float("nan"), "replayed": replayed, "shared": shared_machine(trials)}
+        return {"s_query": s_query, "trial_s": float("nan"), "replayed": replayed, "shared": shared}
     cached = trials["cache_hits"].fillna(0) if "cache_hits" in trials else 0.0
     wall = trials["trial_wall_s"] + (cached * s_query if not np.isnan(s_query) else 0.0)
-    return {"s_query": s_query, "trial_s": float(wall.median()), "replayed": replayed, "shared": shared_machine(trials)}
+    return {"s_query": s_query, "trial_s": float(wall.median()), "replayed": replayed, "shared": shared}
 
 
 def _rate(successes: int, n: int) -> str:

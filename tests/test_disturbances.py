@@ -3,6 +3,7 @@ copying the demonstrations while the seed policy's own action walks through it."
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -81,6 +82,49 @@ def test_the_matrix_report_names_a_hard_track_cell_and_pairs_gains_over_seeds(tm
     view = "\n".join(closed_loop_view([tmp_path / "store", tmp_path / "absent"]))  # the leaderboard's per-cell view
     assert "| controller | mujoco/a1/flat * | mujoco/a1/flat/weak_motors |" in view
     assert "| oracle | 2/2 | 2/2 |" in view and "| knn_nearest_only | 2/2 | 0/2 |" in view
+
+
+def test_a_trial_ended_at_its_stop_keeps_nwt_and_success_and_asks_fewer_queries(tmp_path):
+    """`--end-at-stop` in MuJoCo, A1 with weak motors, copying the nearest example (seeds 0-2: two stop, one falls):
+    NWT, success, the stop and the fall are those of the whole episode; the stopped trials end 2 s after the stop
+    began (the walking test's window), ask a quarter of the queries and leave upright unmeasured; the fall is
+    untouched. Through the sweep, the store and the report say so."""
+    from benchmark.common.store import ResultStore, load_results
+    from benchmark.experiments.experiment import load_experiment
+    from benchmark.experiments.report import write_reports
+    from benchmark.experiments.sweep import run_sweep
+    from benchmark.trial.resources import Resources, Runtime
+
+    cell = make_cell({"prompt_strategy": "nearest-only", "model": "knn", "disturbance": "weak_motors"})
+    whole = run_cell(cell, range(3))
+    resources = Resources(Runtime(end_at_stop=True))
+    try:
+        cut = run_cell(cell, range(3), resources)
+    finally:
+        resources.close()
+    for w, c in zip(whole, cut):
+        assert (c.nwt, c.success, c.stop_time, c.fall_time) == (w.nwt, w.success, w.stop_time, w.fall_time)
+    assert [c.ended_at_stop for c in cut] == [w.stop_time is not None and w.fall_time is None for w in whole]
+    assert sum(c.ended_at_stop for c in cut) >= 1 and any(c.fall_time is not None for c in cut)
+    for w, c in zip(whole, cut):
+        if c.ended_at_stop:
+            assert c.upright_fraction is None and c.control_steps == int(round((c.stop_time + 2.0) / 0.1))
+            assert c.policy_metrics["queries"] < 0.5 * w.policy_metrics["queries"]
+        else:
+            timeless = {"wall_s": 0, "policy_metrics": {}}  # times and latencies differ run to run
+            assert dataclasses.replace(c, **timeless) == dataclasses.replace(w, **timeless)
+
+    path = tmp_path / "tiny_stop.toml"
+    path.write_text('name = "tiny_stop"\nseeds = 2\n[fixed]\nduration = 20.0\nllm_after = 10.0\nseed_start = 1.0\n'
+                    'prompt_strategy = "nearest-only"\ndisturbance = "weak_motors"\n[grid]\ncontroller = ["knn"]\n'
+                    '[variants.controller]\nknn = { policy = "llm", model = "knn" }\n')
+    run_sweep(load_experiment(str(path)).trials(), ResultStore(tmp_path / "store"), workers=1,
+              runtime=Runtime(end_at_stop=True))
+    stored = load_results(tmp_path / "store").sort_values("seed")
+    assert stored["seed"].tolist() == [0, 1] and stored["ended_at_stop"].tolist() == [c.ended_at_stop for c in cut[:2]]
+    write_reports(stored, tmp_path / "reports")
+    text = (tmp_path / "reports" / "tiny_stop.md").read_text()
+    assert f"**Trials ended at their stop**: {sum(c.ended_at_stop for c in cut[:2])} of 2 trials" in text
 
 
 def _matrix_cells() -> list:

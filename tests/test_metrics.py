@@ -11,7 +11,7 @@ from benchmark.llm.controller import LLMSettings
 from benchmark.llm.encodings import get_encoding
 from benchmark.llm.reference import HoldModel, KnnModel, OracleModel, ReplayModel, history_pairs
 from benchmark.llm.replies import parse_reply
-from benchmark.trial.runner import Walking, first_stop, walking_metrics
+from benchmark.trial.runner import Walking, first_stop, walking_metrics, window_stopped
 
 DT, PHASE = 0.1, 10.0
 STEPS = int(PHASE / DT)
@@ -66,6 +66,22 @@ def test_slow_walking_short_of_the_distance_is_no_success():
 def test_a_phase_shorter_than_the_window_is_judged_whole():
     assert first_stop(np.array([0.0, 0.1, 0.2]), DT, 2.0, 0.2) is None
     assert first_stop(np.array([0.0, 0.0, 0.01]), DT, 2.0, 0.2) == 0.0
+
+
+def test_the_stop_seen_step_by_step_is_the_first_stop_of_the_whole_phase():
+    """`--end-at-stop` checks each new window as the trial runs: the first slow one it sees is the one `first_stop`
+    finds over the whole phase, so a trial ended there keeps its NWT and success. Random walks that slow, stall,
+    back off and walk on."""
+    rng, window, speed = np.random.default_rng(3), Walking().window_s, 0.2
+    for _ in range(200):
+        x = np.concatenate([[0.0], np.cumsum(np.abs(rng.normal(0.1, 0.08, STEPS)) * rng.choice([1, 0, -0.5], STEPS,
+                                                                                                  p=[0.8, 0.15, 0.05]))])
+        seen = next((i for i in range(1, len(x) + 1) if window_stopped(list(x[:i]), DT, window, speed)), None)
+        stop = first_stop(x, DT, window, speed)
+        if stop is None:
+            assert seen is None
+        else:  # the window starting at the stop ends at the step it is seen
+            assert seen is not None and seen - 1 == int(round(stop / DT)) + int(round(window / DT))
 
 
 E5 = get_encoding("E5")

@@ -81,7 +81,7 @@ def cmd_sweep(args, overrides_text: list[str], only_text: list[str]) -> int:
         outcome = run_sweep(trials, store, workers=args.workers, executor=args.executor, address=args.ray_address,
                             requests_per_minute=args.rate_limit, threads=args.threads,
                             command=" ".join(["bench", *args.argv]), concurrency=args.concurrency,
-                            runtime=Runtime(draft=args.draft))
+                            runtime=Runtime(draft=args.draft, end_at_stop=args.end_at_stop))
     except (TrialError, LLMError) as err:
         print(f"bench: error: {err} ({len(store.done_ids())} trial(s) stored in {store.root}; "
               "run the same command again to resume)", file=sys.stderr)

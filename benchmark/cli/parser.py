@@ -151,6 +151,11 @@ def build_parser() -> argparse.ArgumentParser:
                        help=f"embedded models, closed loop: speculative decoding ({', '.join(DRAFTS)}; default "
                             f"{Runtime.draft}); it changes a query's time, not a trial's id (a greedy near-tie can flip a "
                             f"reply: docs/models.md measures how often)")
+    sweep.add_argument("--end-at-stop", action="store_true",
+                       help="end each trial once the robot has stopped walking: NWT and success are exact (decided "
+                            "by then), a standing robot's remaining queries are saved; distance, drift and reply "
+                            "diagnostics then cover the trial up to the stop, and reports count such trials. Not part "
+                            "of a trial's id: a resumed store keeps its whole-episode trials")
     for name in ("price_in", "price_out", "price_cached_in"):  # with --dry-run: the estimated bill
         sweep.add_argument("--" + name.replace("_", "-"), type=_number(float), default=None, metavar="USD",
                            help=f"{name.replace('_', ' ')} per 1M tokens: --dry-run estimates the bill")

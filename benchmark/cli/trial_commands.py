@@ -205,6 +205,17 @@ class _StopBetweenTrials(TrialHooks):
             raise Interrupted
 
 
+def _fraction(value: float | None) -> str:
+    """A fraction to two decimals; '-' where it was not measured (a trial ended at its stop)."""
+    return "-" if value is None else f"{value:.2f}"
+
+
+def _measured(trials: list[dict]) -> str:
+    """' (of k trials)' when some trials ended at their stop, so upright was measured on the others only."""
+    k = sum(t["upright_fraction"] is not None for t in trials)
+    return "" if k == len(trials) else f" (of the {k} trials not ended at their stop)"
+
+
 def print_run_table(cell: CellSpec, result: dict) -> None:
     mode = getattr(cell.settings, "history_mode", None)
     print(f"{cell.policy} on {cell.robot} / {cell.sim} / {cell.terrain}, {len(result['trials'])} x "
@@ -216,11 +227,12 @@ def print_run_table(cell: CellSpec, result: dict) -> None:
     for t in result["trials"]:
         end = (f"fell at {t['fall_time']:.1f} s: {t['fall_reason']}" if t["fall_time"] is not None
                else f"stopped walking at {t['stop_time']:.1f} s" if t["stop_time"] is not None else "-")
-        print(f"{t['seed']:>4} {t['nwt']:>5.2f} {'yes' if t['success'] else 'no':>3} {t['upright_fraction']:>7.2f} "
+        end += " (trial ended there: --end-at-stop)" if t.get("ended_at_stop") else ""
+        print(f"{t['seed']:>4} {t['nwt']:>5.2f} {'yes' if t['success'] else 'no':>3} {_fraction(t['upright_fraction']):>7} "
               f"{t['distance_m']:>7.2f} {t['mean_vx']:>7.2f} {t['lateral_drift_m']:>8.2f} "
               f"{t['heading_change_rad']:>7.2f}  {end}")
     print(f"mean NWT {result['nwt']:.3f}, success rate {result['success_rate']:.2f}, "
-          f"upright {result['upright_fraction']:.2f}, distance {result['distance_m']:.2f} m, vx {result['mean_vx']:.2f} m/s")
+          f"upright {_fraction(result['upright_fraction'])}{_measured(result['trials'])}, distance {result['distance_m']:.2f} m, vx {result['mean_vx']:.2f} m/s")
     llm_trials = [t for t in result["trials"] if t.get("queries")]
     if llm_trials:
         print(f"{'seed':>4} {'queries':>7} {'cached':>6} {'unparsed':>8} {'tokens in/out':>14} {'gpt-4 in/out':>13} "

@@ -47,6 +47,14 @@ def shared_machine(trials: pd.DataFrame) -> str:
     return f" (shared: load {float(worst['load_1m']):.1f} on {int(worst['cores'])} cores)"
 
 
+def ended_at_stop(trials: pd.DataFrame) -> int:
+    """How many trials ended at their first stop (`--end-at-stop`): NWT and success exact, the rest of the episode
+    (distance after the stop, a later fall, its replies) not run."""
+    if "ended_at_stop" not in trials:
+        return 0
+    return int(trials["ended_at_stop"].fillna(False).astype(bool).sum())
+
+
 def to_markdown(table: pd.DataFrame) -> str:
     def cell(v) -> str:
         if isinstance(v, float):

@@ -25,7 +25,7 @@ import pandas as pd
 
 from benchmark.common.figures import save_figure
 from benchmark.common.fingerprint import describe
-from benchmark.common.tables import fell_before_takeover, live_latency_mean, to_markdown, wilson
+from benchmark.common.tables import ended_at_stop, fell_before_takeover, live_latency_mean, to_markdown, wilson
 from benchmark.experiments.experiment import Experiment, ExperimentError, axes_of, load_experiment
 from benchmark.experiments.report_latency import latency_section, realtime_section
 from benchmark.experiments.report_ablation import ablation_section
@@ -508,6 +508,12 @@ def _markdown_report(name: str, context: StoreContext, group: pd.DataFrame, tabl
         lines += ["", "**Approximation**: LLM cells with history mode `shifted` ran on llama.cpp's KV-cache shifting "
                       "(cached keys and values keep the dropped pair in context); `bench latency` measures how often "
                       "a reply differs from an exact recompute."]
+    cut = ended_at_stop(group)
+    if cut:
+        lines += ["", f"**Trials ended at their stop**: {cut} of {len(group)} trials ended when the robot first stopped "
+                      "walking (`--end-at-stop`). Their NWT and success are exact (decided at the stop); the rest of "
+                      "the episode did not run, so their `upright` is not measured, their distance and speed cover the "
+                      "walk up to the stop, and their reply diagnostics the replies before it."]
     if context.partial:
         lines += ["", context.partial]
     ground = earlier_ground(group)

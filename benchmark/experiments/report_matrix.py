@@ -18,7 +18,8 @@ import numpy as np
 import pandas as pd
 
 from benchmark.common.figures import save_figure
-from benchmark.common.tables import fell_before_takeover, live_latency_mean, shared_machine, to_markdown, wilson
+from benchmark.common.tables import (ended_at_stop, fell_before_takeover, live_latency_mean, shared_machine, to_markdown,
+                                     wilson)
 from benchmark.llm.reference import REFERENCE_KINDS
 
 CEILING, TRIVIAL = "oracle", ("knn_nearest_only", "hold_nearest_only")
@@ -192,6 +193,8 @@ def matrix_section(group: pd.DataFrame, out: Path, name: str, title: str,
                 text += f"; {m['s_query']:.1f} s a query, {3600 / m['trial_s']:.1f} trials an hour"
                 text += " (replayed from the reply cache: as first measured)" if m["replayed"] else ""
                 text += m["shared"]
+                cut = ended_at_stop(m["trials"])
+                text += f" ({cut} of {len(m['trials'])} ended at their stop)" if cut else ""
             entry[model] = text
         entry.update(probe_screen(probes, r["key"].iloc[0]))
         table.append(entry)

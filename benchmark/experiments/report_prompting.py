@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 
 from benchmark.common.figures import save_figure
-from benchmark.common.tables import live_latency_mean, to_markdown, wilson
+from benchmark.common.tables import ended_at_stop, live_latency_mean, to_markdown, wilson
 from benchmark.llm.controller import strategy_text
 from benchmark.llm.reference import REFERENCE_KINDS, TRIVIAL_ANSWERS
 
@@ -282,6 +282,8 @@ def diagnostics_table(trials: pd.DataFrame, label: str) -> pd.DataFrame:
                "success [95%]": f"{wins / n:.2f} [{low:.2f}, {high:.2f}]",
                "fell or stopped": f"{len(stopped)}/{n}",
                "after (s, median)": round(float(np.median(stopped)), 1) if stopped else "-"}
+        if ended_at_stop(g):
+            row["ended at the stop"] = f"{ended_at_stop(g)}/{n}"  # their replies end there
         for name in DIAGNOSTICS:
             values = g[name].dropna().astype(float) if name in g else pd.Series(dtype=float)
             row[name.replace("_mean", "").replace("_", " ")] = round(float(values.mean()), 3) if len(values) else "-"

@@ -32,6 +32,11 @@ class Runtime:
                                   "history's numbers) and checks the draft in one batch; none decodes token by token",
                          choices=DRAFTS)
     cache: bool = True  # the on-disk LLM reply cache
+    end_at_stop: bool = setting(False, "end a trial once the robot has stopped walking (the walking test's first slow "
+                                       "window): NWT and success are decided by then and come out exactly as over the "
+                                       "whole episode; distance, drift and the reply diagnostics cover the trial up "
+                                       "to that point, upright is not measured, and the row says ended_at_stop. Saves "
+                                       "the queries of a robot that stands (an LLM trial's main cost)")
     slots: int = 1  # embedded models: llama.cpp slots, one per trial in flight (`--concurrency`): their decodes batch
     requests_per_minute: float | None = None  # remote LLM servers: at most this many queries a minute
     price_in: float | None = setting(None, "USD per 1M input tokens, for a cost estimate", minimum=0)

@@ -34,6 +34,7 @@ class EpisodeConfig:
     eval_start: float = 0.0  # s; metrics cover [eval_start, duration]
     heading_hold: bool = False  # steer through the yaw-rate command (benchmark.trial.control.HeadingHold); off: fixed command
     disturbance: Disturbance = NO_DISTURBANCE  # shoves or changed dynamics after eval_start
+    end_at_stop: bool = False  # end at the first stop: NWT and success are decided (benchmark.trial.resources.Runtime)
 
     def __post_init__(self) -> None:
         if not self.duration > 0:
@@ -63,7 +64,8 @@ class TrialResult:
     seed: int
     nwt: float  # normalized walking time: evaluated time before a fall or a stop / evaluated duration
     success: bool  # upright and walking to the end of the evaluated phase, far enough
-    upright_fraction: float  # evaluated time before a fall / evaluated duration (standing counts)
+    upright_fraction: float | None  # evaluated time before a fall / evaluated duration (standing counts); None:
+    # the trial ended at its stop (EpisodeConfig.end_at_stop), so a later fall is unknown
     distance_m: float  # base displacement along the world x axis (forward), evaluated phase
     lateral_drift_m: float  # base displacement along world y, evaluated phase
     mean_vx: float  # mean base-frame forward velocity while walking, m/s
@@ -77,6 +79,7 @@ class TrialResult:
     walk_min_distance_m: float
     control_steps: int
     wall_s: float
+    ended_at_stop: bool = False  # the episode was cut at its first stop (EpisodeConfig.end_at_stop)
     policy_metrics: dict = field(default_factory=dict)  # e.g. the LLM's tokens, latency, parse failures
 
     def to_dict(self) -> dict:
@@ -103,6 +106,13 @@ def first_stop(x: np.ndarray, dt: float, window_s: float, min_speed: float) -> f
     speeds = (x[n:] - x[:-n]) / (n * dt)
     slow = np.flatnonzero(speeds < min_speed)
     return float(slow[0] * dt) if slow.size else None
+
+
+def window_stopped(x: list[float], dt: float, window_s: float, min_speed: float) -> bool:
+    """Whether the window ending at the newest step of `x` is too slow: checked after every step, the first True
+    falls on the window `first_stop` finds first (same arithmetic), so a trial ended there keeps its NWT and success."""
+    n = int(round(window_s / dt))
+    return len(x) > n and (x[-1] - x[-1 - n]) / (n * dt) < min_speed
 
 
 def walking_metrics(x: np.ndarray, yaw: np.ndarray, fall_after: float | None, evaluated: float, dt: float,
@@ -140,7 +150,8 @@ def run_trial(sim: Simulator, robot: Robot, terrain: Terrain, policy: Policy, co
     vx: list[float] = []
     heights: list[float] = []
     progress, yaws = [float(eval_origin[0])], [yaw_of(loop.state.base_quat)]
-    fall_time, last = None, loop.state
+    fall_time, last, cut = None, loop.state, False
+    min_speed = walking.min_speed_fraction * abs(float(robot.command[0]))
     for _ in range(steps):
         loop.step(policy.act(loop.obs, loop.state))
         config.disturbance.apply(sim, loop.time - config.eval_start, loop.dt)
@@ -159,6 +170,9 @@ def run_trial(sim: Simulator, robot: Robot, terrain: Terrain, policy: Policy, co
             heights.append(float(state.base_pos[2]) - terrain.height_at(*state.base_pos[:2]))
             progress.append(float(state.base_pos[0]))
             yaws.append(yaw_of(state.base_quat))
+            if config.end_at_stop and window_stopped(progress, loop.dt, walking.window_s, min_speed):
+                cut = True
+                break
     evaluated = config.duration - config.eval_start
     fell_in_phase = fall_time is not None and fall_time > config.eval_start
     fall_after = None if fall_time is None else max(0.0, fall_time - config.eval_start)
@@ -168,6 +182,8 @@ def run_trial(sim: Simulator, robot: Robot, terrain: Terrain, policy: Policy, co
     metrics = walking_metrics(np.array(progress), np.array(yaws), fall_after, evaluated, loop.dt,
                               float(robot.command[0]), walking)
     stop = metrics.pop("stop_time")
+    if cut:
+        metrics["upright_fraction"] = None  # the trial ended standing: whether it would have fallen is unknown
     return TrialResult(
         seed=seed,
         **metrics,
@@ -180,6 +196,7 @@ def run_trial(sim: Simulator, robot: Robot, terrain: Terrain, policy: Policy, co
         stop_time=None if stop is None else config.eval_start + stop,
         control_steps=loop.steps,
         wall_s=time.perf_counter() - start,
+        ended_at_stop=cut,
         policy_metrics=policy.metrics(),
     )
 
@@ -188,9 +205,10 @@ def summarize(trials: list[TrialResult]) -> dict:
     """Means over trials: the numbers a table reports."""
     if not trials:
         return {"nwt": 0.0, "success_rate": 0.0, "upright_fraction": 0.0, "distance_m": 0.0, "mean_vx": 0.0}
+    upright = [t.upright_fraction for t in trials if t.upright_fraction is not None]  # trials ended at a stop: unknown
     return {
         "nwt": float(np.mean([t.nwt for t in trials])),
-        "upright_fraction": float(np.mean([t.upright_fraction for t in trials])),
+        "upright_fraction": float(np.mean(upright)) if upright else None,
         "success_rate": float(np.mean([t.success for t in trials])),
         "distance_m": float(np.mean([t.distance_m for t in trials])),
         "mean_vx": float(np.mean([t.mean_vx for t in trials])),

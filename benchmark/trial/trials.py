@@ -47,7 +47,7 @@ def run_cell(cell: CellSpec, seeds: Iterable[int], resources: Resources | None =
         sim = resources.sim(cell, robot, terrain)
         policy = build_policy(cell, robot, resources)
         episode = EpisodeConfig(duration=cell.duration, eval_start=cell.eval_start, heading_hold=cell.heading_hold,
-                                disturbance=DISTURBANCES[cell.disturbance])
+                                disturbance=DISTURBANCES[cell.disturbance], end_at_stop=resources.runtime.end_at_stop)
         results = []
         try:
             for seed in seeds:

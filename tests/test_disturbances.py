@@ -122,6 +122,7 @@ def test_a_trial_ended_at_its_stop_keeps_nwt_and_success_and_asks_fewer_queries(
               runtime=Runtime(end_at_stop=True))
     stored = load_results(tmp_path / "store").sort_values("seed")
     assert stored["seed"].tolist() == [0, 1] and stored["ended_at_stop"].tolist() == [c.ended_at_stop for c in cut[:2]]
+    assert (stored["load_1m_mean"] > 0).all() and (stored["load_1m_max"] >= stored["load_1m_mean"]).all()
     write_reports(stored, tmp_path / "reports")
     text = (tmp_path / "reports" / "tiny_stop.md").read_text()
     assert f"**Trials ended at their stop**: {sum(c.ended_at_stop for c in cut[:2])} of 2 trials" in text
@@ -326,3 +327,9 @@ def test_a_latency_measured_beside_other_work_is_marked_shared():
     assert shared_machine(beside) == " (shared: load 3.9 on 2 cores)" == cell_speed(beside)["shared"]
     assert shared_machine(beside.assign(latency_mean_s=[0.0, 0.0])) == ""  # replayed: no latency measured here
     assert shared_machine(beside.drop(columns="cores")) == ""
+    # judged on the load through the trial where it was recorded: a spike at the end is not a shared trial, and a
+    # trial that shared the cores throughout is one even if the load had dropped when it ended
+    spike = alone.assign(load_1m=[2.0, 3.9], load_1m_mean=[2.0, 2.2])
+    assert shared_machine(spike) == ""
+    throughout = alone.assign(load_1m_mean=[2.1, 3.0])
+    assert shared_machine(throughout) == " (shared: mean load 3.0 on 2 cores)" == cell_speed(throughout)["shared"]

@@ -34,17 +34,21 @@ def live_latency_mean(trials: pd.DataFrame) -> float:
 
 
 def shared_machine(trials: pd.DataFrame) -> str:
-    """' (shared: load L on C cores)' where a trial that queried live ended with the machine's load above its cores
-    by half a core or more (other work ran beside it, so its latencies read high); "" otherwise or where the store
-    has no core count (trials stored before it was recorded)."""
+    """' (shared: mean load L on C cores)' where a trial that queried live ran with the machine's load above its cores
+    by half a core or more on average (other work ran beside it, so its latencies read high); "" otherwise or where
+    the store has no core count (trials stored before it was recorded). Trials stored before the mean was recorded
+    are judged on the load as they ended (' (shared: load L on C cores)')."""
     if not {"load_1m", "cores"} <= set(trials) or "latency_mean_s" not in trials:
         return ""
     live = trials[trials["latency_mean_s"].astype(float) > 0]
-    over = live[live["load_1m"].astype(float) > live["cores"].astype(float) + 0.5]
+    mean = live["load_1m_mean"].astype(float) if "load_1m_mean" in live else pd.Series(np.nan, index=live.index)
+    load = mean.fillna(live["load_1m"].astype(float))
+    over = load[load > live["cores"].astype(float) + 0.5]
     if over.empty:
         return ""
-    worst = over.loc[over["load_1m"].astype(float).idxmax()]
-    return f" (shared: load {float(worst['load_1m']):.1f} on {int(worst['cores'])} cores)"
+    worst = over.idxmax()
+    kind = "load" if np.isnan(mean[worst]) else "mean load"
+    return f" (shared: {kind} {float(over[worst]):.1f} on {int(live.loc[worst, 'cores'])} cores)"
 
 
 def ended_at_stop(trials: pd.DataFrame) -> int:

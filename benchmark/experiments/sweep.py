@@ -69,6 +69,20 @@ class _Trajectory(TrialHooks):
         return keep
 
 
+class _Load(TrialHooks):
+    """The machine's 1-minute load average, read once a simulated second through the trial: its mean says whether
+    other work shared the cores for the trial's whole length, which the load at its end alone cannot."""
+
+    def start(self, seed, sim, policy, episode):
+        self.samples = [os.getloadavg()[0]]
+
+        def sample(loop) -> None:
+            if loop.steps % 10 == 0:
+                self.samples.append(os.getloadavg()[0])
+
+        return sample
+
+
 class _Worker:
     """What one process (or thread) keeps between trials: engines and models, in one Resources."""
 
@@ -84,8 +98,8 @@ class _Worker:
                              f"{type(err).__name__}: {err}") from None
 
     def _row(self, trial: Trial) -> dict:
-        cell, trajectory, started = trial.cell, _Trajectory(), time.perf_counter()
-        result = run_cell(cell, [trial.seed], self.resources, hooks=[trajectory])[0]
+        cell, trajectory, load, started = trial.cell, _Trajectory(), _Load(), time.perf_counter()
+        result = run_cell(cell, [trial.seed], self.resources, hooks=[trajectory, load])[0]
         seed_policy = shipped_seed_policy_sha256(cell.robot)  # the seed policy (rl, and the LLM's history)
         return {"experiment": trial.experiment, "trial_id": trial.id, "cell_id": trial.cell_id,
                 "cell_index": trial.cell_index, **cell.params(), **trial.labels, "axes": json.dumps(list(trial.labels)),
@@ -93,6 +107,7 @@ class _Worker:
                 "seed_policy_sha256": seed_policy, "terrain_sha256": terrain_digest(cell.terrain, cell.terrain_seed),
                 "traj_joint_pos": trajectory.joint_pos,
                 "load_1m": os.getloadavg()[0],  # the machine's load as the trial ended: measured latencies need it
+                "load_1m_mean": float(sum(load.samples) / len(load.samples)), "load_1m_max": max(load.samples),
                 "cores": os.cpu_count(),  # what that load is measured against (a load above it: other work shared)
                 "trial_wall_s": time.perf_counter() - started,
                 "traj_joint_target": trajectory.joint_target, "traj_base_x": trajectory.base_x, "worker": f"{socket.gethostname()}:{os.getpid()}"}

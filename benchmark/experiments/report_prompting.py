@@ -282,8 +282,9 @@ def diagnostics_table(trials: pd.DataFrame, label: str) -> pd.DataFrame:
                "success [95%]": f"{wins / n:.2f} [{low:.2f}, {high:.2f}]",
                "fell or stopped": f"{len(stopped)}/{n}",
                "after (s, median)": round(float(np.median(stopped)), 1) if stopped else "-"}
-        if ended_at_stop(g):
-            row["ended at the stop"] = f"{ended_at_stop(g)}/{n}"  # their replies end there
+        cut = ended_at_stop(g)
+        if cut:
+            row["ended at the stop"] = f"{cut}/{n}"  # their replies end there
         for name in DIAGNOSTICS:
             values = g[name].dropna().astype(float) if name in g else pd.Series(dtype=float)
             row[name.replace("_mean", "").replace("_", " ")] = round(float(values.mean()), 3) if len(values) else "-"

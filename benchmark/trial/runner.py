@@ -58,6 +58,10 @@ class Walking:
     min_speed_fraction: float = 0.2  # of the commanded forward speed, over every window
     min_distance_fraction: float = 0.4  # of the commanded distance over the phase, for success
 
+    def min_speed(self, command_vx: float) -> float:
+        """m/s of progress every window needs: the walking test's bar for this command."""
+        return self.min_speed_fraction * abs(command_vx)
+
 
 @dataclass(frozen=True)
 class TrialResult:
@@ -121,7 +125,7 @@ def walking_metrics(x: np.ndarray, yaw: np.ndarray, fall_after: float | None, ev
 
     `x` and `yaw` hold the phase's progress and heading at every control step up to a fall;
     `fall_after` is the fall's time into the phase (None: no fall)."""
-    min_speed = walking.min_speed_fraction * abs(command_vx)
+    min_speed = walking.min_speed(command_vx)
     min_distance = walking.min_distance_fraction * abs(command_vx) * evaluated
     stop = first_stop(np.asarray(x, dtype=float), dt, walking.window_s, min_speed)
     upright = fall_after if fall_after is not None else evaluated
@@ -151,7 +155,7 @@ def run_trial(sim: Simulator, robot: Robot, terrain: Terrain, policy: Policy, co
     heights: list[float] = []
     progress, yaws = [float(eval_origin[0])], [yaw_of(loop.state.base_quat)]
     fall_time, last, cut = None, loop.state, False
-    min_speed = walking.min_speed_fraction * abs(float(robot.command[0]))
+    min_speed = walking.min_speed(float(robot.command[0]))
     for _ in range(steps):
         loop.step(policy.act(loop.obs, loop.state))
         config.disturbance.apply(sim, loop.time - config.eval_start, loop.dt)

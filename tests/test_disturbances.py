@@ -80,7 +80,8 @@ def test_the_matrix_report_names_a_hard_track_cell_and_pairs_gains_over_seeds(tm
     from benchmark.experiments.report_matrix import closed_loop_view
 
     view = "\n".join(closed_loop_view([tmp_path / "store", tmp_path / "absent"]))  # the leaderboard's per-cell view
-    assert "| controller | mujoco/a1/flat * | mujoco/a1/flat/weak_motors |" in view
+    assert "| controller | mujoco/a1/flat * | mujoco/a1/flat/weak_motors (hard) |" in view  # the hard track named
+    assert "where a model's own contribution can show: mujoco/a1/flat/weak_motors." in view
     assert "| oracle | 2/2 | 2/2 |" in view and "| knn_nearest_only | 2/2 | 0/2 |" in view
 
 

@@ -78,6 +78,15 @@ def cell_rows(group: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def is_hard_cell(by: pd.DataFrame) -> bool:
+    """A cell's rows indexed by controller (`cell_rows`): the ceiling walks (`oracle` success >= 0.9) and every
+    trivial answer run fails (< 0.6), the hard track's rule."""
+    oracle = by.loc[CEILING] if CEILING in by.index else None
+    trivial = [by.loc[t] for t in TRIVIAL if t in by.index and by.loc[t, "n"]]
+    return bool(oracle is not None and oracle["n"] and oracle["successes"] / oracle["n"] >= HARD_ORACLE and trivial
+                and all(t["successes"] / t["n"] < HARD_TRIVIAL for t in trivial))
+
+
 def cell_speed(trials: pd.DataFrame) -> dict:
     """Seconds a query and a trial's wall time as if every reply were live: the live replies' mean latency, or,
     where every reply came from the reply cache, the latency recorded when they were made (`replayed`); a trial's
@@ -173,8 +182,7 @@ def matrix_section(group: pd.DataFrame, out: Path, name: str, title: str,
         entry = {"cell": cell, "fell before takeover (apart)": int(r["early"].max()),
                  "oracle": _rate(oracle["successes"], oracle["n"]) if oracle is not None else "-",
                  "best trivial answer": f"{best.name}: {_rate(best['successes'], best['n'])}" if best is not None else "-"}
-        is_hard = (oracle is not None and oracle["n"] and oracle["successes"] / oracle["n"] >= HARD_ORACLE and trivial
-                   and all(t["successes"] / t["n"] < HARD_TRIVIAL for t in trivial))
+        is_hard = is_hard_cell(by)
         entry["hard track"] = "yes" if is_hard else ""
         if is_hard:
             hard.append(cell)
@@ -228,12 +236,17 @@ def closed_loop_view(stores: list[Path]) -> list[str]:
         if not applies(group):
             continue
         rows = cell_rows(group)
-        rows = rows.assign(text=[f"{r.successes}/{r.n}" if r.n else "-" for r in rows.itertuples()])
+        hard = [cell for cell, r in rows.groupby("cell", sort=False) if is_hard_cell(r.set_index("controller"))]
+        rows = rows.assign(text=[f"{r.successes}/{r.n}" if r.n else "-" for r in rows.itertuples()],
+                           cell=[f"{c} (hard)" if c in hard else c for c in rows["cell"]])
         pivot = rows.pivot(index="controller", columns="cell", values="text").reindex(
             index=list(dict.fromkeys(rows["controller"])), columns=list(dict.fromkeys(rows["cell"]))).fillna("not run")
         name = group["experiment"].iloc[0]
         lines += [f"## Closed loop per cell: `{name}`", "",
                   f"Success k/n per cell (`bench sweep {name}`, report: [{name}.md]({name}.md)); trials whose seed phase "
                   "fell before the takeover are left out; `*` marks the paper's cells; `not run` is a partial store's "
-                  "gap.", "", to_markdown(pivot.reset_index()), ""]
+                  "gap. **Hard track** "
+                  f"(`oracle` success >= {HARD_ORACLE}, both trivial answers < {HARD_TRIVIAL}; `(hard)` in the header), "
+                  "where a model's own contribution can show: " + (", ".join(hard) if hard else "no cell yet") + ".",
+                  "", to_markdown(pivot.reset_index()), ""]
     return lines

@@ -78,11 +78,17 @@ def cell_rows(group: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def is_hard_cell(by: pd.DataFrame) -> bool:
-    """A cell's rows indexed by controller (`cell_rows`): the ceiling walks (`oracle` success >= 0.9) and every
-    trivial answer run fails (< 0.6), the hard track's rule."""
+def ceiling_and_trivial(by: pd.DataFrame) -> tuple[pd.Series | None, list[pd.Series]]:
+    """A cell's rows indexed by controller (`cell_rows`): its `oracle` row (None: not run) and the trivial answers
+    that counted a trial."""
     oracle = by.loc[CEILING] if CEILING in by.index else None
-    trivial = [by.loc[t] for t in TRIVIAL if t in by.index and by.loc[t, "n"]]
+    return oracle, [by.loc[t] for t in TRIVIAL if t in by.index and by.loc[t, "n"]]
+
+
+def is_hard_cell(by: pd.DataFrame) -> bool:
+    """The hard track's rule on a cell's rows indexed by controller: the ceiling walks (`oracle` success >= 0.9) and
+    every trivial answer run fails (< 0.6)."""
+    oracle, trivial = ceiling_and_trivial(by)
     return bool(oracle is not None and oracle["n"] and oracle["successes"] / oracle["n"] >= HARD_ORACLE and trivial
                 and all(t["successes"] / t["n"] < HARD_TRIVIAL for t in trivial))
 
@@ -176,8 +182,7 @@ def matrix_section(group: pd.DataFrame, out: Path, name: str, title: str,
     table, hard = [], []
     for cell, r in rows.groupby("cell", sort=False):
         by = r.set_index("controller")
-        oracle = by.loc[CEILING] if CEILING in by.index else None
-        trivial = [by.loc[t] for t in TRIVIAL if t in by.index and by.loc[t, "n"]]
+        oracle, trivial = ceiling_and_trivial(by)
         best = max(trivial, key=lambda t: t["successes"] / t["n"]) if trivial else None
         entry = {"cell": cell, "fell before takeover (apart)": int(r["early"].max()),
                  "oracle": _rate(oracle["successes"], oracle["n"]) if oracle is not None else "-",
@@ -219,7 +224,7 @@ def matrix_section(group: pd.DataFrame, out: Path, name: str, title: str,
              "partial store's gap, not a result. `probe:` columns screen a cell teacher-forced on its engine's probe "
              "set: skill, and the gain over the same prompt's trivial answers with its paired 95% interval (at or "
              "below 0 the prompt carries the imitation).", "", to_markdown(pd.DataFrame(table)), "",
-             "**The hard track** (oracle success >= 0.9, both trivial answers < 0.6): "
+             f"**The hard track** (oracle success >= {HARD_ORACLE}, both trivial answers < {HARD_TRIVIAL}): "
              + (", ".join(hard) if hard else "no cell yet") + ".", ""]
     return lines, [figure]
 

@@ -200,6 +200,29 @@ def test_report_writes_markdown_html_csv_and_png_figures(tmp_path, uninterrupted
     assert "<table" in (tmp_path / "tiny.html").read_text()
 
 
+def test_the_store_loads_trials_of_many_shapes_as_one_frame_per_trial_concat_would(tmp_path):
+    """The grouped Arrow load gives the frame that concatenating each trial's own frame gives (the reference
+    semantics: a trial's missing values are absences), rows in file-name order, columns by first appearance."""
+    import pyarrow.parquet as pq
+
+    store = ResultStore(tmp_path)
+    rows = [{"trial_id": "c", "nwt": 0.5, "success": True, "path": [1.0, 2.0], "note": "x"},
+            {"trial_id": "a", "nwt": 1.0, "success": None, "path": [3.0], "model": "knn"},
+            {"trial_id": "b", "nwt": float("nan"), "success": False, "path": [4.0], "note": None, "queries": 7},
+            {"trial_id": "d", "nwt": 0.25, "success": True, "path": [5.0], "note": "y"},
+            {"trial_id": "e", "nwt": float("nan"), "queries": 3}]
+    for row in rows:
+        store.write(row)
+    files = sorted(store.trials_dir.glob("*.parquet"))
+    reference = pd.concat([pq.read_table(f).to_pandas().dropna(axis=1, how="all") for f in files], ignore_index=True)
+    loaded = store.load()
+    pd.testing.assert_frame_equal(loaded, reference)
+    assert list(loaded["trial_id"]) == ["a", "b", "c", "d", "e"]
+    assert list(loaded.columns) == ["trial_id", "nwt", "path", "model", "success", "queries", "note"]
+    assert loaded["success"].tolist()[1:4] == [False, True, True] and pd.isna(loaded["success"][0])
+    assert ResultStore(tmp_path / "none").load().empty
+
+
 def test_report_of_a_missing_or_empty_store_is_one_line(tmp_path):
     for target, message in [(tmp_path / "nothing", "no results at"), (tmp_path, "holds no trials yet")]:
         proc = subprocess.run([*BENCH, "report", str(target), "--out", str(tmp_path / "out")],

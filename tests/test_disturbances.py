@@ -334,3 +334,52 @@ def test_a_latency_measured_beside_other_work_is_marked_shared():
     assert shared_machine(spike) == ""
     throughout = alone.assign(load_1m_mean=[2.1, 3.0])
     assert shared_machine(throughout) == " (shared: mean load 3.0 on 2 cores)" == cell_speed(throughout)["shared"]
+
+
+def test_the_told_prompt_says_its_cells_disturbance_in_the_closed_loop_and_the_probe_alike():
+    """`tell_disturbance` (the hard track's `qwen15_told`): the description gains the cell's own `told` sentence, in a
+    closed-loop trial (MuJoCo A1 with weak motors, on `hold`, 1 s of queries) and in the probe's A1 and ANYmal walks
+    (each its own disturbance); the examples below it are nearest-only's to the character, so its trivial answers are
+    nearest-only's; under disturbance none there is nothing to tell."""
+    from benchmark.evaluate.probe import ProbeRun, answer_items, load_probe_set
+    from benchmark.evaluate.study import probe_jobs
+    from benchmark.experiments.experiment import load_experiment
+    from benchmark.llm.prompt import split_prompt
+    from benchmark.llm.reference import HoldModel
+    from benchmark.trial.trials import KeepPolicy
+
+    class RecordingHold(HoldModel):
+        def __init__(self) -> None:
+            super().__init__()
+            self.prompts: list[str] = []
+
+        def reply_to(self, prompt: str) -> str:
+            self.prompts.append(prompt)
+            return super().reply_to(prompt)
+
+    experiment = load_experiment("hard_track")
+    only = {"sim": "mujoco", "robot": "a1", "disturbance": "weak_motors"}
+
+    def loop_prompt(controller: str, **change) -> str:
+        cell = experiment.trials(only={**only, "controller": controller})[0].cell
+        settings = dataclasses.replace(cell.settings, model="hold", seed_start=0.5, llm_after=3.0)
+        keep = KeepPolicy()
+        run_cell(dataclasses.replace(cell, duration=4.0, settings=settings, **change), [0], hooks=[keep])
+        return keep.policy.last_prompt
+
+    told, plain = loop_prompt("qwen15_told"), loop_prompt("qwen15_nearest_only")
+    weak = DISTURBANCES["weak_motors"].told
+    assert weak and weak not in plain and split_prompt(told)[0] == split_prompt(plain)[0] + "\n\n" + weak
+    assert split_prompt(told)[1] == split_prompt(plain)[1]  # the same examples and input: the same trivial answers
+    assert loop_prompt("qwen15_told", disturbance="none") == loop_prompt("qwen15_nearest_only", disturbance="none")
+
+    job = next(j for j in probe_jobs(experiment) if j.labels["sim"] == "mujoco" and j.llm.tell_disturbance)
+    def probe_prompt(cell: str) -> str:  # the first item of the cell's first walk
+        model = RecordingHold()
+        answer_items(load_probe_set(job.probe_path), ProbeRun(llm=dataclasses.replace(job.llm, model="hold"),
+                                                              window=job.window, items=1, cells=(cell,)), model=model)
+        return model.prompts[0]
+
+    a1, anymal = probe_prompt("a1/flat/weak_motors"), probe_prompt("anymal/flat/weaker_motors")
+    assert split_prompt(a1)[0] == split_prompt(told)[0]  # the closed loop's description, word for word
+    assert DISTURBANCES["weaker_motors"].told in anymal and weak not in anymal

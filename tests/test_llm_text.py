@@ -103,6 +103,21 @@ def test_prompt_ends_with_the_current_input_awaiting_output():
     assert text.count("Input:") == 3 and lines[-3] == "Output: [110, 110, 110, 110, 110, 110, 110, 110, 110, 110, 110, 110]"
 
 
+@pytest.mark.parametrize("observation", ["O1", "O5"])
+@pytest.mark.parametrize("strategy", ["chronological", "nearest-only"])
+def test_the_chat_layout_sends_the_whole_description_as_the_system_message(strategy, observation):
+    """The paper's chat layout splits a prompt at its examples (or its current input when it shows none): the system
+    message is the description, all five parts, though the io part itself begins "Input: ..."."""
+    from benchmark.llm.prompt import split_prompt
+
+    cfg = PromptConfig(history=2, observation=observation, strategy=strategy)
+    description = describe_robot(load_robot("a1"), cfg)
+    pairs = [(np.zeros(33), np.zeros(12)), (np.ones(33), np.ones(12))]
+    for shown in (pairs, []):
+        system, user = split_prompt(build_prompt(description, shown, np.full(33, 0.5), cfg, demonstrations=pairs))
+        assert system == description and user.endswith("Output:") and "Joint order" not in user
+
+
 @pytest.mark.parametrize("history,paper", [(0, 348), (10, 1738), (30, 4518), (50, 7298)])
 def test_gpt4_prompt_size_is_within_15_percent_of_the_paper(history, paper):
     out = subprocess.run([sys.executable, "-m", "benchmark.cli", "prompt", "--robot", "a1", "--history", str(history),

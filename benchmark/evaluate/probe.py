@@ -47,7 +47,7 @@ import numpy as np
 
 from benchmark.common.settings import SettingError, setting
 from benchmark.common.skill import item_resamples, skill, skill_difference
-from benchmark.llm.controller import CONTROL_DT, LLMSettings, _new_model
+from benchmark.llm.controller import CONTROL_DT, LLMSettings, _new_model, told_condition
 from benchmark.llm.encodings import get_encoding
 from benchmark.llm.prompt import build_prompt, describe_robot
 from benchmark.llm.reference import HoldModel, knn_answer
@@ -319,14 +319,16 @@ def answer_items(probe: ProbeSet, run: ProbeRun, runtime: Runtime = Runtime(), m
     if owned:
         model = probe_model(run, runtime)
     total = sum(1 for _ in _prompts(probe, run))
-    rows, started, per_robot, last_walk = [], time.perf_counter(), {}, None
+    rows, started, described, last_walk = [], time.perf_counter(), {}, None
     try:
         for walk, k, history, demonstrations, obs, label in _prompts(probe, run):
-            if walk.robot not in per_robot:  # description and constraint: once per robot, as in closed loop
+            disturbance = probe_cell(walk.cell)[2]
+            if (walk.robot, disturbance) not in described:  # description and constraint: once each, as in closed loop
                 robot = load_robot(walk.robot)
-                per_robot[walk.robot] = (describe_robot(robot, s.prompt, control_hz=1.0 / CONTROL_DT),
-                                         reply_constraint(enc, robot.num_joints, s.constrained), robot.num_joints)
-            description, constraint, n = per_robot[walk.robot]
+                described[walk.robot, disturbance] = (
+                    describe_robot(robot, s.prompt, control_hz=1.0 / CONTROL_DT, condition=told_condition(s, disturbance)),
+                    reply_constraint(enc, robot.num_joints, s.constrained), robot.num_joints)
+            description, constraint, n = described[walk.robot, disturbance]
             prompt = build_prompt(description, history, obs, s.prompt, demonstrations)
             target = enc.quantize(label)
             held_q = enc.quantize(history[-1][1] if history else np.zeros(n))

@@ -43,6 +43,11 @@ from benchmark.llm.models import require_models
 from benchmark.trial.resources import Runtime
 
 
+# LLM settings added after probe rows were stored: left out of a probe run's id at their default, so stored rows
+# keep their ids (the closed loop's trial ids do the same for every `added_later` setting)
+PROBE_ID_LATER = {"tell_disturbance": False}
+
+
 @dataclass(frozen=True)
 class ProbeJob:
     """One (model, prompt settings) of an experiment's probe grid, on one probe set."""
@@ -59,8 +64,10 @@ class ProbeJob:
 
     @property
     def id(self) -> str:
-        key = json.dumps([self.experiment, "probe", dataclasses.asdict(self.llm), self.window, self.cells, self.items,
-                          self.probe_digest], sort_keys=True)
+        llm = {k: v for k, v in dataclasses.asdict(self.llm).items()
+               if not (k in PROBE_ID_LATER and v == PROBE_ID_LATER[k])}
+        key = json.dumps([self.experiment, "probe", llm, self.window, self.cells, self.items, self.probe_digest],
+                         sort_keys=True)
         return hashlib.sha256(key.encode()).hexdigest()[:16]
 
     def label(self) -> str:

@@ -164,7 +164,8 @@ def probe_screen(probes: pd.DataFrame, key: dict) -> dict:
         skills, gains = json.loads(r.cell_skills), json.loads(r.cell_gains)
         if name in gains:
             gain, low, high = gains[name]
-            out[f"probe: {r.model}"] = f"skill {skills[name]:.2f}; gain {gain:+.2f} [{low:+.2f}, {high:+.2f}]"
+            told = " told" if getattr(r, "tell_disturbance", None) is True else ""  # the told prompt's own run
+            out[f"probe: {r.model}{told}"] = f"skill {skills[name]:.2f}; gain {gain:+.2f} [{low:+.2f}, {high:+.2f}]"
     return out
 
 

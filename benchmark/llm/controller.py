@@ -18,6 +18,7 @@ import numpy as np
 from benchmark.trial.cell import CellSpec
 from benchmark.trial.resources import Resources, Runtime
 from benchmark.trial.trials import KeepPolicy, run_cell
+from benchmark.trial.disturbances import DISTURBANCES
 from benchmark.trial.clock import CLOCKS, MEASURED, RealtimeClock, parse_latency
 from benchmark.llm.encodings import DEFAULT_ENCODING, ENCODINGS, get_encoding
 from benchmark.llm.models import (MODEL_FORMS, SERVER_KINDS, LanguageModel, Reply, Sampling,
@@ -41,6 +42,11 @@ APPROXIMATE_MODES = ("shifted",)
 SHIFT_CHUNK = 64  # tokens: llama.cpp's n_cache_reuse, the smallest cached chunk it moves instead of recomputing
 CONTROL_DT = PhysicsConfig().control_dt  # s, the 10 Hz control period every engine runs
 STRATEGY_FIELDS = ("prompt_strategy", "retrieve_k", "memory", "distance")  # LLMSettings that shape the examples
+
+
+def told_condition(settings: LLMSettings, disturbance: str) -> str:
+    """What the description says about the disturbance: its `told` sentence with `tell_disturbance`, else nothing."""
+    return DISTURBANCES[disturbance].told if settings.tell_disturbance else ""
 
 
 def is_embedded(model: str) -> bool:
@@ -89,6 +95,9 @@ class LLMSettings:
                             choices=tuple(ENCODINGS))
     observation: str = setting(DEFAULT_OBSERVATION, "prompt inputs: "
                                + "; ".join(f"{k} {v[0]}" for k, v in OBSERVATIONS.items()), choices=tuple(OBSERVATIONS))
+    tell_disturbance: bool = setting(False, "the description says what the cell's disturbance does (e.g. every motor "
+                                            "at 60% of its torque; nothing under disturbance none): copying cannot "
+                                            "read a sentence, a language model might", added_later=True)
     constrained: bool = setting(True, "grammar/schema on the reply (--no-constrained: the paper's setting)")
     temperature: float = setting(0.0, "sampling temperature", minimum=0)
     llm_after: float = setting(10.0, "s: the LLM takes over and metrics start (with --policy rl: metrics start, "
@@ -194,13 +203,14 @@ class LLMPolicy:
     name = "llm"
 
     def __init__(self, robot: Robot, settings: LLMSettings = LLMSettings(), runtime: Runtime | None = None,
-                 model: LanguageModel | None = None, seed_policy=None) -> None:
+                 model: LanguageModel | None = None, seed_policy=None, disturbance: str = "none") -> None:
         self.robot, self.settings, self.runtime = robot, settings, runtime or Runtime()
         self.seed_policy = seed_policy or SeedPolicy(robot)
         self._owns_model = model is None
         self.model = model or _new_model(settings, self.runtime)
         self.encoding = get_encoding(settings.encoding)
-        self.description = describe_robot(robot, settings.prompt, control_hz=1.0 / CONTROL_DT)
+        self.description = describe_robot(robot, settings.prompt, control_hz=1.0 / CONTROL_DT,
+                                          condition=told_condition(settings, disturbance))
         self.constraint = reply_constraint(self.encoding, robot.num_joints, settings.constrained)
         self.seed_action = np.zeros(robot.num_joints)  # what the seed policy would do now (for recordings)
         self.last_prompt = ""
@@ -212,7 +222,7 @@ class LLMPolicy:
         s, rt = cell.settings, resources.runtime
         key = (s.model, s.url, s.layout, s.server, rt.threads, rt.requests_per_minute, rt.cache, s.approximate,
                rt.slots)
-        return cls(robot, s, rt, model=resources.model(key, lambda: _new_model(s, rt)))
+        return cls(robot, s, rt, model=resources.model(key, lambda: _new_model(s, rt)), disturbance=cell.disturbance)
 
     def reset(self, seed: int) -> None:
         self.seed_policy.reset(seed)

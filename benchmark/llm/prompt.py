@@ -8,6 +8,7 @@ of inputs and outputs), `joints` (joint order), `pipeline` (how outputs become m
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -61,8 +62,9 @@ class PromptConfig:
             raise ValueError(f"retrieve_k must be >= 1 pair, got {self.k}")
 
 
-def describe_robot(robot: Robot, config: PromptConfig, control_hz: float = 10.0) -> str:
-    """The description part: the selected components, one paragraph each."""
+def describe_robot(robot: Robot, config: PromptConfig, control_hz: float = 10.0, condition: str = "") -> str:
+    """The description part: the selected components, one paragraph each, then `condition` (what changed since the
+    examples were recorded, a disturbance's `told` sentence) as a paragraph of its own when given."""
     enc = get_encoding(config.encoding)
     n_obs = len(select(config.observation))
     texts = {
@@ -77,7 +79,7 @@ def describe_robot(robot: Robot, config: PromptConfig, control_hz: float = 10.0)
                      f"as in the examples."),
         "illustration": _illustration(enc),
     }
-    return "\n\n".join(texts[p] for p in PARTS if p in config.parts)
+    return "\n\n".join([*(texts[p] for p in PARTS if p in config.parts), *([condition] if condition else [])])
 
 
 def _illustration(enc: Encoding) -> str:
@@ -103,6 +105,8 @@ def build_prompt(description: str, history: Sequence[Pair], obs: np.ndarray, con
 def split_prompt(prompt: str) -> tuple[str, str]:
     """(description, history and current input): the chat layout's system and user messages, as the
     paper's code sent them."""
-    starts = [i for i in (*(prompt.find(h) for h in EXAMPLE_HEADERS), prompt.find("Input: ")) if i >= 0]
+    first_list = re.search(r"^Input: \[", prompt, flags=re.MULTILINE)  # not the io paragraph's "Input: base ..."
+    starts = [i for i in (*(prompt.find(h) for h in EXAMPLE_HEADERS), first_list.start() if first_list else -1)
+              if i >= 0]
     cut = min(starts) if starts else len(prompt)
     return prompt[:cut].strip(), prompt[cut:]

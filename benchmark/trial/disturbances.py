@@ -9,7 +9,9 @@ state. The seed policy was trained with shoves (up to 0.5 m/s per axis every 5 s
 where `oracle` walks and the same prompt's trivial answers do not, a model's own contribution shows
 (the hard track; `bench report hard_track` names those cells). Times count from the evaluated phase's
 start (the takeover), so the prompts up to it are those of the undisturbed trial, and every engine
-applies the same schedule through `Simulator.push_base` and `Simulator.set_dynamics`.
+applies the same schedule through `Simulator.push_base` and `Simulator.set_dynamics`. With the LLM
+setting `tell_disturbance` the description says what the disturbance does (its `told` sentence):
+copying cannot read a sentence, so a model that turns it into other targets shows it.
 
     none           nothing (the paper's protocol)
     weak_motors    every motor gives 60% of its PD torque from the takeover on: the shown targets
@@ -39,6 +41,7 @@ class Disturbance:
     help: str
     shoves: tuple[tuple[float, float, float], ...] = ()  # (s after the takeover, vx, vy in m/s, world frame)
     dynamics: Dynamics | None = None  # applied at the takeover, nominal again at the next reset
+    told: str = ""  # the sentence a prompt adds to its description with `tell_disturbance` (our words)
 
     def start(self, sim: Simulator) -> None:
         """At the episode's start: nominal dynamics (an engine is reused across trials)."""
@@ -57,10 +60,16 @@ class Disturbance:
 DISTURBANCES: dict[str, Disturbance] = {d.name: d for d in (
     Disturbance("none", "nothing: the paper's protocol"),
     Disturbance("weak_motors", "every motor gives 60% of its torque from the takeover on",
-                dynamics=Dynamics(motor_strength=0.6)),
+                dynamics=Dynamics(motor_strength=0.6),
+                told="Now every motor gives only 60% of the torque it gave when the examples were recorded: the "
+                     "same targets move the joints less and later than the examples show."),
     Disturbance("weaker_motors", "every motor gives 50% of its torque from the takeover on",
-                dynamics=Dynamics(motor_strength=0.5)),
+                dynamics=Dynamics(motor_strength=0.5),
+                told="Now every motor gives only half the torque it gave when the examples were recorded: the same "
+                     "targets move the joints less and later than the examples show."),
     Disturbance("shoves", "sideways shoves of 1 m/s, left, right, left, 2, 5 and 8 s after the takeover",
-                shoves=((2.0, 0.0, 1.0), (5.0, 0.0, -1.0), (8.0, 0.0, 1.0))),
+                shoves=((2.0, 0.0, 1.0), (5.0, 0.0, -1.0), (8.0, 0.0, 1.0)),
+                told="Now the body is shoved sideways at 1 m/s every 3 s, left, right, then left again; the "
+                     "examples never met a shove."),
 )}
 NO_DISTURBANCE = DISTURBANCES["none"]

@@ -1,4 +1,4 @@
-"""Shared fixtures: the cells of the benchmark (engine x robot x terrain)."""
+"""Shared fixtures: the cells of the benchmark (engine x robot x terrain), and `hold` that keeps its prompts."""
 
 from __future__ import annotations
 
@@ -6,11 +6,24 @@ import itertools
 
 import pytest
 
+from benchmark.llm.reference import HoldModel
 from robots import available_robots, load_robot
 from sims import available_sims, make_sim
 from sims.terrain import TERRAINS, Terrain
 
 CELLS = list(itertools.product(available_sims(), available_robots(), TERRAINS))
+
+
+class RecordingHold(HoldModel):
+    """`hold`, keeping every prompt it was asked."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.prompts: list[str] = []
+
+    def reply_to(self, prompt: str) -> str:
+        self.prompts.append(prompt)
+        return super().reply_to(prompt)
 
 
 @pytest.fixture(scope="session")

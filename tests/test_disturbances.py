@@ -345,17 +345,8 @@ def test_the_told_prompt_says_its_cells_disturbance_in_the_closed_loop_and_the_p
     from benchmark.evaluate.study import probe_jobs
     from benchmark.experiments.experiment import load_experiment
     from benchmark.llm.prompt import split_prompt
-    from benchmark.llm.reference import HoldModel
     from benchmark.trial.trials import KeepPolicy
-
-    class RecordingHold(HoldModel):
-        def __init__(self) -> None:
-            super().__init__()
-            self.prompts: list[str] = []
-
-        def reply_to(self, prompt: str) -> str:
-            self.prompts.append(prompt)
-            return super().reply_to(prompt)
+    from conftest import RecordingHold
 
     experiment = load_experiment("hard_track")
     only = {"sim": "mujoco", "robot": "a1", "disturbance": "weak_motors"}

@@ -15,26 +15,14 @@ from benchmark.experiments.experiment import load_experiment
 from benchmark.llm.encodings import Encoding, get_encoding
 from benchmark.llm.prompt import PARTS, split_prompt
 from benchmark.llm.prompt_inputs import describe, select
-from benchmark.llm.reference import HoldModel
 from benchmark.llm.strategies import format_pair
 from benchmark.trial.trials import KeepPolicy, run_cell
+from conftest import RecordingHold
 
 WALKING = ("walking_description", "walking_history", "walking_observation", "walking_normalization")
 MODEL = "qwen15"  # the closed loop's model row; its trials run here on `hold` (the prompt is the model's)
 PART_MARKS = {"task": "You control a", "io": "body frame (x forward", "joints": "Joint order:",
               "pipeline": "tracked by PD control", "illustration": "Reply with one line:"}
-
-
-class RecordingHold(HoldModel):
-    """`hold`, keeping every prompt it was asked."""
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.prompts: list[str] = []
-
-    def reply_to(self, prompt: str) -> str:
-        self.prompts.append(prompt)
-        return super().reply_to(prompt)
 
 
 def _axis(experiment) -> str:

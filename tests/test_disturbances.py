@@ -292,6 +292,37 @@ def test_the_nwt_gain_pairs_seeds_where_success_cannot_move():
     assert n == 3 and gain == pytest.approx((0.05 + 0.0 + 0.31) / 3) and 0.0 <= low <= gain <= high <= 0.31
 
 
+def test_each_model_is_paired_with_the_trivial_answers_of_its_own_examples():
+    """A cell with the walking prompt's references, the recent3 prompt's and three model rows: the nearest-only and
+    told rows (one more sentence, the same examples) pair with the better of `knn`/`hold` on nearest-only, the recent3
+    row with the better of its own prompt's (here `hold_recent3`, 2 of 2, where nearest-only's copying walks 1 of 2);
+    the hard track reads the walking prompt's alone."""
+    import pandas as pd
+
+    from benchmark.experiments.report_matrix import cell_rows, is_hard_cell, same_prompt_trivial
+
+    only, recent = dict(prompt_strategy="nearest-only", history=50), dict(prompt_strategy="nearest", history=3)
+    rows = {"oracle": ("oracle", only, [True, True]), "knn_nearest_only": ("knn", only, [True, False]),
+            "hold_nearest_only": ("hold", only, [False, False]),
+            "knn_chronological": ("knn", dict(prompt_strategy="chronological", history=50), [True, True]),
+            "knn_recent3": ("knn", recent, [False, False]), "hold_recent3": ("hold", recent, [True, True]),
+            "qwen15_nearest_only": ("qwen2.5-coder-1.5b", only, [False, False]),
+            "qwen15_told": ("qwen2.5-coder-1.5b", {**only, "tell_disturbance": True}, [False, True]),
+            "qwen15_recent3": ("qwen2.5-coder-1.5b", recent, [True, False])}
+    trials = pd.DataFrame([{"sim": "mujoco", "robot": "a1", "terrain": "flat", "disturbance": "weak_motors",
+                            "controller": name, "model": model, "seed": seed, "success": ok, "nwt": float(ok),
+                            "retrieve_k": 3, "memory": "demonstrations", "distance": "l2", "encoding": "E5",
+                            "observation": "O5", **prompt}
+                           for name, (model, prompt, wins) in rows.items() for seed, ok in enumerate(wins)])
+    by = cell_rows(trials).set_index("controller")
+    assert same_prompt_trivial(by, "qwen15_nearest_only").name == "knn_nearest_only"
+    assert same_prompt_trivial(by, "qwen15_told").name == "knn_nearest_only"
+    assert same_prompt_trivial(by, "qwen15_recent3").name == "hold_recent3"
+    assert same_prompt_trivial(by.drop(["knn_recent3", "hold_recent3"]), "qwen15_recent3") is None
+    assert is_hard_cell(by)  # nearest-only's copying 1 of 2 (< 0.6); hold_recent3 and knn_chronological walking
+    assert not is_hard_cell(by.drop("hold_nearest_only").assign(successes=by["n"]))  # do not count; all walking does
+
+
 def test_a_cell_replayed_from_the_reply_cache_does_not_read_as_fast():
     """Trials an hour count every cached reply at the live latency: a resumed trial (98 of 100 replies cached) costs
     what a live one does, and a cell whose every reply came from the cache reads the latency recorded when its

@@ -3,8 +3,8 @@
 For an experiment whose grid crosses cells (engine, robot, terrain, disturbance) with controllers that include
 the seed policy's action through the text channel (`oracle`) and the walking prompt's trivial answers
 (`knn_nearest_only`, `hold_nearest_only`): a figure of success per cell and controller with Wilson intervals,
-a table per cell with each language model's closed-loop gain over the better trivial answer (success, and NWT,
-paired over the same seeds, bootstrap 95% intervals) and its speed, and the hard track: the cells where `oracle` walks
+a table per cell with each language model's closed-loop gain over the better trivial answer of its own prompt (the
+`knn` and `hold` rows on the same examples; success, and NWT, paired over the same seeds, bootstrap 95% intervals) and its speed, and the hard track: the cells where `oracle` walks
 (success >= 0.9) and both trivial answers fail (< 0.6). Trials whose seed phase fell before the takeover are
 left out of every rate here and counted apart.
 """
@@ -20,9 +20,11 @@ import pandas as pd
 from benchmark.common.figures import save_figure
 from benchmark.common.tables import (ended_at_stop, fell_before_takeover, live_latency_mean, shared_machine, to_markdown,
                                      wilson)
-from benchmark.llm.reference import REFERENCE_KINDS
+from benchmark.llm.reference import REFERENCE_KINDS, TRIVIAL_ANSWERS
 
-CEILING, TRIVIAL = "oracle", ("knn_nearest_only", "hold_nearest_only")
+CEILING, TRIVIAL = "oracle", ("knn_nearest_only", "hold_nearest_only")  # the hard track's: the walking prompt's
+# what decides the examples a prompt shows, so what copying it gives (not the description: `tell_disturbance`)
+EXAMPLE_SETTINGS = ("prompt_strategy", "history", "retrieve_k", "memory", "distance", "encoding", "observation")
 CELL_AXES = ("sim", "robot", "terrain", "disturbance")
 PAPER_CELLS = {("a1", "flat"), ("a1", "rough"), ("anymal", "flat")}  # where the paper walked a robot with GPT-4
 HARD_ORACLE, HARD_TRIVIAL = 0.9, 0.6
@@ -70,8 +72,9 @@ def cell_rows(group: pd.DataFrame) -> pd.DataFrame:
         key = key if isinstance(key, tuple) else (key,)
         for controller, trials in cell.groupby("controller", sort=False):
             counted = trials[~trials["early"]]
+            first = trials.iloc[0]
             rows.append({"cell": cell_label(key, axes), "key": dict(zip(axes, key)), "controller": controller,
-                         "n": len(counted),
+                         "examples": tuple(str(first.get(k)) for k in EXAMPLE_SETTINGS), "n": len(counted),
                          "successes": int(counted["success"].sum()), "early": int(trials["early"].sum()),
                          **cell_speed(counted),
                          "model": trials["model"].iloc[0] if "model" in trials else None, "trials": counted})
@@ -83,6 +86,16 @@ def ceiling_and_trivial(by: pd.DataFrame) -> tuple[pd.Series | None, list[pd.Ser
     that counted a trial."""
     oracle = by.loc[CEILING] if CEILING in by.index else None
     return oracle, [by.loc[t] for t in TRIVIAL if t in by.index and by.loc[t, "n"]]
+
+
+def same_prompt_trivial(by: pd.DataFrame, controller: str) -> pd.Series | None:
+    """The better of the trivial answers (`knn`, `hold`) run on the examples a model's prompt shows (the same
+    EXAMPLE_SETTINGS), in a cell's rows indexed by controller (`cell_rows`): what copying that prompt gives. None
+    where none ran."""
+    mine = by.loc[controller, "examples"]
+    trivial = [by.loc[c] for c in by.index
+               if by.loc[c, "model"] in TRIVIAL_ANSWERS and by.loc[c, "examples"] == mine and by.loc[c, "n"]]
+    return max(trivial, key=lambda t: t["successes"] / t["n"]) if trivial else None
 
 
 def is_hard_cell(by: pd.DataFrame) -> bool:
@@ -196,12 +209,13 @@ def matrix_section(group: pd.DataFrame, out: Path, name: str, title: str,
             if model not in by.index or not by.loc[model, "n"]:
                 entry[model] = "not run"
                 continue
-            m = by.loc[model]
+            m, copying = by.loc[model], same_prompt_trivial(by, model)
             text = _rate(m["successes"], m["n"])
-            if best is not None:
-                gain, low, high, n = paired_gain(m["trials"], best["trials"], rng)
+            if copying is not None:
+                gain, low, high, n = paired_gain(m["trials"], copying["trials"], rng)
                 text += f"; gain {gain:+.2f} [{low:+.2f}, {high:+.2f}] over {n} seeds"
-                gain, low, high, n = paired_gain(m["trials"], best["trials"], rng, "nwt")
+                text += "" if copying.name in TRIVIAL else f" (over `{copying.name}`, its prompt's)"
+                gain, low, high, n = paired_gain(m["trials"], copying["trials"], rng, "nwt")
                 text += f" (NWT {gain:+.2f} [{low:+.2f}, {high:+.2f}])"
             if not np.isnan(m["s_query"]):
                 text += f"; {m['s_query']:.1f} s a query, {3600 / m['trial_s']:.1f} trials an hour"
@@ -215,9 +229,9 @@ def matrix_section(group: pd.DataFrame, out: Path, name: str, title: str,
     lines = ["", "## The cell matrix", "",
              f"![success per cell and controller](figures/{figure.name})", "",
              "Success counts only trials whose seed phase reached the takeover; those that fell before it are counted "
-             "apart (the controller under test never acted). The gain is each model's success minus the better of the "
-             "walking prompt's trivial answers (`knn`, `hold` on nearest-only), paired over the seeds both ran, with a "
-             "bootstrap 95% interval; in brackets the same for NWT (the fraction of the model's phase it walked), "
+             "apart (the controller under test never acted). The gain is each model's success minus the better of its "
+             "prompt's trivial answers (`knn`, `hold` on the same examples: nearest-only's for the walking prompt, "
+             "another row's where named), paired over the seeds both ran, with a bootstrap 95% interval; in brackets the same for NWT (the fraction of the model's phase it walked), "
              "which still moves where both fall every time. Speed: seconds a query (live queries) and trials an hour "
              "(median trial, each reply the reply cache served counted at the live latency, so a resumed or replayed "
              "trial costs what a live one does). "

@@ -88,6 +88,12 @@ def ceiling_and_trivial(by: pd.DataFrame) -> tuple[pd.Series | None, list[pd.Ser
     return oracle, [by.loc[t] for t in TRIVIAL if t in by.index and by.loc[t, "n"]]
 
 
+def better(rows: list[pd.Series]) -> pd.Series | None:
+    """The row of higher success, and of higher mean NWT among equal successes (None: no row): the trivial answer a
+    model must beat, on both of the report's gains."""
+    return max(rows, key=lambda t: (t["successes"] / t["n"], t["trials"]["nwt"].mean())) if rows else None
+
+
 def same_prompt_trivial(by: pd.DataFrame, controller: str) -> pd.Series | None:
     """The better of the trivial answers (`knn`, `hold`) run on the examples a model's prompt shows (the same
     EXAMPLE_SETTINGS), in a cell's rows indexed by controller (`cell_rows`): what copying that prompt gives. None
@@ -95,7 +101,7 @@ def same_prompt_trivial(by: pd.DataFrame, controller: str) -> pd.Series | None:
     mine = by.loc[controller, "examples"]
     trivial = [by.loc[c] for c in by.index
                if by.loc[c, "model"] in TRIVIAL_ANSWERS and by.loc[c, "examples"] == mine and by.loc[c, "n"]]
-    return max(trivial, key=lambda t: t["successes"] / t["n"]) if trivial else None
+    return better(trivial)
 
 
 def is_hard_cell(by: pd.DataFrame) -> bool:
@@ -197,7 +203,7 @@ def matrix_section(group: pd.DataFrame, out: Path, name: str, title: str,
     for cell, r in rows.groupby("cell", sort=False):
         by = r.set_index("controller")
         oracle, trivial = ceiling_and_trivial(by)
-        best = max(trivial, key=lambda t: t["successes"] / t["n"]) if trivial else None
+        best = better(trivial)
         entry = {"cell": cell, "fell before takeover (apart)": int(r["early"].max()),
                  "oracle": _rate(oracle["successes"], oracle["n"]) if oracle is not None else "-",
                  "best trivial answer": f"{best.name}: {_rate(best['successes'], best['n'])}" if best is not None else "-"}

@@ -325,8 +325,9 @@ def answer_items(probe: ProbeSet, run: ProbeRun, runtime: Runtime = Runtime(), m
             disturbance = probe_cell(walk.cell)[2]
             if (walk.robot, disturbance) not in described:  # description and constraint: once each, as in closed loop
                 robot = load_robot(walk.robot)
+                condition = told_condition(s, disturbance)
                 described[walk.robot, disturbance] = (
-                    describe_robot(robot, s.prompt, control_hz=1.0 / CONTROL_DT, condition=told_condition(s, disturbance)),
+                    describe_robot(robot, s.prompt, control_hz=1.0 / CONTROL_DT, condition=condition),
                     reply_constraint(enc, robot.num_joints, s.constrained), robot.num_joints)
             description, constraint, n = described[walk.robot, disturbance]
             prompt = build_prompt(description, history, obs, s.prompt, demonstrations)

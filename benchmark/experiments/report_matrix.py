@@ -4,8 +4,9 @@ For an experiment whose grid crosses cells (engine, robot, terrain, disturbance)
 the seed policy's action through the text channel (`oracle`) and the walking prompt's trivial answers
 (`knn_nearest_only`, `hold_nearest_only`): a figure of success per cell and controller with Wilson intervals,
 a table per cell with each language model's closed-loop gain over the better trivial answer of its own prompt (the
-`knn` and `hold` rows on the same examples; success, and NWT, paired over the same seeds, bootstrap 95% intervals) and its speed, and the hard track: the cells where `oracle` walks
-(success >= 0.9) and both trivial answers fail (< 0.6). Trials whose seed phase fell before the takeover are
+`knn` and `hold` rows on the same examples; success, and NWT, paired over the same seeds, bootstrap 95% intervals)
+and its speed, and the hard track: the cells where `oracle` walks (success >= 0.9) and both of the walking prompt's
+trivial answers fail (< 0.6). Trials whose seed phase fell before the takeover are
 left out of every rate here and counted apart.
 """
 
@@ -20,11 +21,12 @@ import pandas as pd
 from benchmark.common.figures import save_figure
 from benchmark.common.tables import (ended_at_stop, fell_before_takeover, live_latency_mean, shared_machine, to_markdown,
                                      wilson)
+from benchmark.llm.controller import STRATEGY_FIELDS
 from benchmark.llm.reference import REFERENCE_KINDS, TRIVIAL_ANSWERS
 
 CEILING, TRIVIAL = "oracle", ("knn_nearest_only", "hold_nearest_only")  # the hard track's: the walking prompt's
 # what decides the examples a prompt shows, so what copying it gives (not the description: `tell_disturbance`)
-EXAMPLE_SETTINGS = ("prompt_strategy", "history", "retrieve_k", "memory", "distance", "encoding", "observation")
+EXAMPLE_SETTINGS = (*STRATEGY_FIELDS, "history", "encoding", "observation")
 CELL_AXES = ("sim", "robot", "terrain", "disturbance")
 PAPER_CELLS = {("a1", "flat"), ("a1", "rough"), ("anymal", "flat")}  # where the paper walked a robot with GPT-4
 HARD_ORACLE, HARD_TRIVIAL = 0.9, 0.6
@@ -237,8 +239,9 @@ def matrix_section(group: pd.DataFrame, out: Path, name: str, title: str,
              "Success counts only trials whose seed phase reached the takeover; those that fell before it are counted "
              "apart (the controller under test never acted). The gain is each model's success minus the better of its "
              "prompt's trivial answers (`knn`, `hold` on the same examples: nearest-only's for the walking prompt, "
-             "another row's where named), paired over the seeds both ran, with a bootstrap 95% interval; in brackets the same for NWT (the fraction of the model's phase it walked), "
-             "which still moves where both fall every time. Speed: seconds a query (live queries) and trials an hour "
+             "another row's where named), paired over the seeds both ran, with a bootstrap 95% interval; in brackets "
+             "the same for NWT (the fraction of the model's phase it walked), which still moves where both fall every "
+             "time. Speed: seconds a query (live queries) and trials an hour "
              "(median trial, each reply the reply cache served counted at the live latency, so a resumed or replayed "
              "trial costs what a live one does). "
              "`*` marks the paper's cells (A1 flat and rough, ANYmal flat). A model row that says `not run` is a "

@@ -4,6 +4,7 @@ with their figures. Both read only the numbers the store holds."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -12,7 +13,7 @@ import pandas as pd
 
 from benchmark.common.figures import save_figure
 from benchmark.common.tables import ended_at_stop, live_latency_mean, to_markdown, wilson
-from benchmark.llm.controller import strategy_text
+from benchmark.llm.controller import LLMSettings, strategy_text
 from benchmark.llm.reference import REFERENCE_KINDS, TRIVIAL_ANSWERS
 
 DIAGNOSTICS = ("repeat_fraction", "copy_fraction", "demo_distance_mean", "oracle_distance_mean")
@@ -117,7 +118,9 @@ def with_variants(rows: pd.DataFrame, name: str) -> pd.DataFrame:
     axes = [a for a in grid if a not in ("model", "prompt_strategy") and a in rows]
     if not axes:
         return rows
-    return rows.assign(strategy=rows[axes].astype(str).agg(" ".join, axis=1) + ": " + rows["strategy"])
+    defaults = {f.name: f.default for f in dataclasses.fields(LLMSettings)}  # a row stored before a setting: its default
+    labels = rows[axes].apply(lambda col: col.map(lambda v: str(defaults.get(col.name) if pd.isna(v) else v)))
+    return rows.assign(strategy=labels.agg(" ".join, axis=1) + ": " + rows["strategy"])
 
 
 def probe_section(rows: pd.DataFrame, out: Path, name: str, expected: int | None = None) -> tuple[list[str], list[Path]]:

@@ -13,6 +13,20 @@ from sims.terrain import TERRAINS, Terrain
 
 CELLS = list(itertools.product(available_sims(), available_robots(), TERRAINS))
 
+# Files whose tests are mostly llama.cpp reading prompts on two threads: on one worker, one after another. Two such
+# processes at once on two cores take turns at llama.cpp's spinning thread barriers (measured: `bench throughput` on
+# Gemma 270M, 72 s alone, 135 s each with a second beside it; decode 44 against 13 tok/s).
+ONE_WORKER_FILES = {"test_history_modes.py", "test_lockstep.py"}
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Group tests for `--dist loadgroup`: a file's tests stay on one worker (its module fixtures built once), and
+    the files in ONE_WORKER_FILES share one worker. Runs before xdist reads the groups."""
+    for item in items:
+        name = item.path.name
+        item.add_marker(pytest.mark.xdist_group("embedded-llm" if name in ONE_WORKER_FILES else name))
+
 
 class RecordingHold(HoldModel):
     """`hold`, keeping every prompt it was asked."""

@@ -62,8 +62,9 @@ def test_the_embedded_model_in_lockstep_is_measured_against_its_sequential_repli
     assert first["identical_to_first"] == 1.0 and 0.0 <= second["identical_to_first"] <= 1.0
     assert first["parse_failures"] == second["parse_failures"] == 0
     assert second["action_diff_same_prompt"] is not None and 0.0 <= second["action_diff_same_prompt"] < 1.0
-    rates = result["rates"]
-    assert rates["prefill_tok_s"] > 10 and rates["decode_tok_s"] > 1
+    rates = result["rates"]  # measured, not judged: speed belongs to `bench throughput`, not to a test's threshold
+    assert rates["prompt_tokens"] > 0 and rates["decoded_tokens"] > 0
+    assert rates["prefill_tok_s"] > 0 and rates["decode_tok_s"] > 0
     assert first["floor_s"] > 0 and first["latency_mean_s"] > 0 and first["read_tokens"] > 0
 
 

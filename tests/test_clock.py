@@ -86,7 +86,7 @@ def test_measured_latency_reads_the_prompt_once_before_the_clock_and_never_uses_
     monkeypatch.setenv(CACHE_ENV, str(tmp_path))
     cell = make_cell({"policy": "llm", "history": 3, "duration": 2.6, "llm_after": 2.0, "clock": "realtime",
                       "latency": "measured"})
-    kept, resources = KeepPolicy(), Resources(Runtime(threads=2))
+    kept, resources = KeepPolicy(), Resources(Runtime())
     try:
         result = run_cell(cell, [0], resources, hooks=[kept])[0]
     finally:

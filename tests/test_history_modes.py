@@ -43,7 +43,7 @@ def test_each_mode_gets_the_llamacpp_settings_it_needs(mode, reuse):
 def test_the_drift_report_compares_every_reply_with_a_cold_recompute(capsys):
     from benchmark.llm.latency import measure
 
-    rows = measure("embedded", [5], ["sliding", "shifted"], queries=2, threads=2)
+    rows = measure("embedded", [5], ["sliding", "shifted"], queries=2)
     assert "bench: latency cell 2/2 (history 5, shifted, draft ngram)" in capsys.readouterr().err  # not a terminal
     sliding, shifted = rows
     assert (sliding["mode"], shifted["mode"]) == ("sliding", "shifted") and shifted["approximate"]
@@ -57,7 +57,7 @@ def test_the_drift_report_compares_every_reply_with_a_cold_recompute(capsys):
 def test_ngram_drafting_is_measured_against_decoding_without_it():
     from benchmark.llm.latency import measure
 
-    drafted, plain = measure("embedded", [5], ["shifted"], queries=2, threads=2, drift=False, drafts=("ngram", "none"))
+    drafted, plain = measure("embedded", [5], ["shifted"], queries=2, drift=False, drafts=("ngram", "none"))
     assert (drafted["draft"], plain["draft"]) == ("ngram", "none") and "same_as_no_draft" not in plain
     assert drafted["same_as_no_draft"] >= 1 / 2  # greedy drafting keeps the reply (batch effects aside)
 
@@ -73,7 +73,7 @@ def test_a_trial_answers_the_same_after_another_trial_as_alone():
 
     cell = make_cell({"policy": "llm", "history": 10, "llm_after": 2.0, "duration": 2.2})  # shifted, 2 queries
     one_query = dataclasses.replace(cell, duration=2.1)
-    runtime = Runtime(threads=2, cache=False)
+    runtime = Runtime(cache=False)
 
     def replies(before: bool) -> list:
         resources, watch = Resources(runtime), KeepPolicy()

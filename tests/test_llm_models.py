@@ -7,6 +7,8 @@ import contextlib
 import io
 import json
 import socket
+import subprocess
+import sys
 import threading
 import time
 import urllib.request
@@ -406,3 +408,10 @@ def test_concurrency_keeps_trials_in_flight_and_the_rate_limit_holds_across_them
         assert len(server.arrivals) == 12 and min(gaps) >= 0.15 and sum(gaps) >= 11 * 0.19, gaps
     finally:
         server.close()
+
+
+def test_the_embedded_model_takes_a_thread_per_core_this_process_may_use():
+    """`taskset` or a container that allows one core gets one llama.cpp thread: two would take turns on it."""
+    code = ("import os; os.sched_setaffinity(0, {min(os.sched_getaffinity(0))});"
+            "from benchmark.llm.models import default_threads; print(default_threads())")
+    assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout == "1\n"

@@ -50,7 +50,7 @@ def test_the_embedded_model_in_lockstep_is_measured_against_its_sequential_repli
     greedy reply that flips one token writes the rest of its line differently (Gemma's takeover replies, same
     prompt: 86 against 81, then 100s against 101s), so agreement is measured, not assumed: the difference on the
     same prompt is reported and stays within the range of a plausible answer."""
-    out = subprocess.run([*BENCH, "throughput", "--concurrency", "1", "2", "--queries", "2", "--threads", "2",
+    out = subprocess.run([*BENCH, "throughput", "--concurrency", "1", "2", "--queries", "2",
                           "--drafts", "ngram", "none", "--json"], capture_output=True, text=True, timeout=900)
     assert out.returncode == 0, out.stderr
     result = json.loads(out.stdout)
@@ -74,7 +74,7 @@ def test_speed_settings_run_side_by_side_and_the_fast_one_reads_fewer_tokens():
     replies to its own prompt (fast writes another one), and fast's E4c layout with one example reads well under
     two thirds of what the default's E5 with three does."""
     out = subprocess.run([*BENCH, "throughput", "--settings", "default", "fast", "--concurrency", "1", "--queries", "2",
-                          "--threads", "2", "--json"], capture_output=True, text=True, timeout=600)
+                          "--json"], capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stderr
     default, fast = json.loads(out.stdout)["levels"]
     assert (default["setting"], default["encoding"], default["retrieve_k"]) == ("default", "E5", 3)

@@ -38,7 +38,7 @@ from benchmark.common.fingerprint import fingerprint_id, platform_fingerprint
 from benchmark.common.interrupt import Interrupted, Interruption, ignore_sigint
 from benchmark.common.store import ResultStore
 from benchmark.experiments.experiment import Trial
-from benchmark.llm.models import require_models
+from benchmark.llm.models import default_threads, require_models
 from benchmark.trial.resources import Resources, Runtime, SharedModels
 from sims.terrain import Terrain
 from benchmark.trial.trials import TrialHooks, run_cell
@@ -360,7 +360,7 @@ def run_sweep(trials: list[Trial], store: ResultStore, workers: int = 1, executo
     done = store.done_ids() - stale_trials(store)
     todo = [t for t in trials if t.id not in done]
     require_models(m for t in todo if (m := getattr(t.cell.settings, "model", None)))  # stored trials need none
-    runtime = dataclasses.replace(runtime, threads=threads or max(1, (os.cpu_count() or 1) // workers),
+    runtime = dataclasses.replace(runtime, threads=threads or max(1, default_threads() // workers),
                                   requests_per_minute=None if requests_per_minute is None else requests_per_minute / workers)
     meta = run_metadata(command)
     start = time.perf_counter()

@@ -107,8 +107,10 @@ class LanguageModel(Protocol):
 
 
 def default_threads() -> int:
-    """Every core: the load average right after other work said 1 of 2 cores was free and halved speed."""
-    return os.cpu_count() or 1
+    """Every core this process may run on (all of them unless `taskset` or a container says fewer): the load average
+    right after other work said 1 of 2 cores was free and halved speed, and llama.cpp threads beyond the cores
+    allowed take turns at its spinning barriers (2 threads on 1 free core: 3-5 times slower)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
 WAIT_STEP_S = 0.2  # s between checks for a signal while llama.cpp answers

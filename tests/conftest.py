@@ -16,13 +16,12 @@ CELLS = list(itertools.product(available_sims(), available_robots(), TERRAINS))
 
 
 def pytest_configure(config: pytest.Config) -> None:
-    """Each pytest-xdist worker (and what it starts) runs on cores of its own, so the embedded model's llama.cpp
-    threads (one per core allowed, `default_threads`) never share a core with the other worker's tests. Sharing made
-    its spinning thread barriers take turns: CI measured Gemma 270M decoding at 0.6 tok/s (44 alone)."""
-    worker, count = os.environ.get("PYTEST_XDIST_WORKER"), int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
-    cores = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_setaffinity") else []
-    if worker and 1 < count <= len(cores):
-        os.sched_setaffinity(0, set(cores[int(worker.removeprefix("gw")) % count::count]))
+    """Each pytest-xdist worker (and what it starts) gives the embedded model its share of the cores
+    (`PROMPTWALK_THREADS`), so llama.cpp's threads never outnumber the cores beside the other worker's tests: then
+    its spinning thread barriers take turns, and CI measured Gemma 270M decoding at 0.6 tok/s (44 alone)."""
+    count = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+    if os.environ.get("PYTEST_XDIST_WORKER") and count > 1:
+        os.environ.setdefault("PROMPTWALK_THREADS", str(max(1, len(os.sched_getaffinity(0)) // count)))
 
 
 class RecordingHold(HoldModel):

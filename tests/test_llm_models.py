@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import os
 import socket
 import subprocess
 import sys
@@ -411,7 +412,18 @@ def test_concurrency_keeps_trials_in_flight_and_the_rate_limit_holds_across_them
 
 
 def test_the_embedded_model_takes_a_thread_per_core_this_process_may_use():
-    """`taskset` or a container that allows one core gets one llama.cpp thread: two would take turns on it."""
+    """`taskset` or a container that allows one core gets one llama.cpp thread (two would take turns on it), and
+    `PROMPTWALK_THREADS` says otherwise; a value that is not a number of threads is refused in one line."""
     code = ("import os; os.sched_setaffinity(0, {min(os.sched_getaffinity(0))});"
             "from benchmark.llm.models import default_threads; print(default_threads())")
-    assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout == "1\n"
+    env = {k: v for k, v in os.environ.items() if k != "PROMPTWALK_THREADS"}
+
+    def threads(**extra: str) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env={**env, **extra})
+
+    assert threads().stdout == "1\n" and threads(PROMPTWALK_THREADS="3").stdout == "3\n"
+    out = subprocess.run([sys.executable, "-m", "benchmark.cli", "run", "--llm", "embedded", "--trials", "1"], capture_output=True, text=True,
+                         env={**env, "PROMPTWALK_THREADS": "two"})
+    assert out.returncode != 0 and "Traceback" not in out.stderr
+    assert out.stderr.strip().splitlines()[-1] == (
+        "bench: error: PROMPTWALK_THREADS='two' is not a number of threads; give a whole number >= 1"), out.stderr

@@ -92,7 +92,8 @@ def build_parser() -> argparse.ArgumentParser:
                                  "(default 1 2 4)")
     throughput.add_argument("--queries", type=_number(int, True), default=10,
                             help="LLM queries a trial (a full trial has 100; default 10)")
-    throughput.add_argument("--threads", type=_number(int, True), default=None, help="llama.cpp threads (default: all cores)")
+    throughput.add_argument("--threads", type=_number(int, True), default=None,
+                            help="llama.cpp threads (default: PROMPTWALK_THREADS, else the cores allowed)")
     throughput.add_argument("--drafts", nargs="+", default=None, choices=DRAFTS, metavar="DRAFT",
                             help=f"speculative decoding, one set of levels each, compared with the first "
                                  f"({', '.join(DRAFTS)}; default {DEFAULT_DRAFT})")
@@ -146,7 +147,7 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("--rate-limit", type=_number(float, True), default=None, metavar="RPM",
                        help="remote LLM servers: at most RPM queries a minute over all workers")
     sweep.add_argument("--threads", type=_number(int, True), default=None,
-                       help="llama.cpp threads per worker (default: cores / workers)")
+                       help="llama.cpp threads per worker (default: PROMPTWALK_THREADS or the cores allowed, / workers)")
     sweep.add_argument("--draft", default=Runtime.draft, choices=DRAFTS,
                        help=f"embedded models, closed loop: speculative decoding ({', '.join(DRAFTS)}; default "
                             f"{Runtime.draft}); it changes a query's time, not a trial's id (a greedy near-tie can flip a "

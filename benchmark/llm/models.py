@@ -107,9 +107,14 @@ class LanguageModel(Protocol):
 
 
 def default_threads() -> int:
-    """Every core this process may run on (all of them unless `taskset` or a container says fewer): the load average
-    right after other work said 1 of 2 cores was free and halved speed, and llama.cpp threads beyond the cores
-    allowed take turns at its spinning barriers (2 threads on 1 free core: 3-5 times slower)."""
+    """llama.cpp threads when none is asked for: `PROMPTWALK_THREADS`, else every core this process may run on (all
+    of them unless `taskset` or a container allows fewer). Fewer halve speed (the load average right after other work
+    said 1 of 2 cores was free); more take turns at llama.cpp's spinning barriers (2 threads on 1 free core: 3-5x)."""
+    asked = os.environ.get("PROMPTWALK_THREADS")
+    if asked is not None:
+        if not asked.isdigit() or int(asked) < 1:
+            raise LLMError(f"PROMPTWALK_THREADS='{asked}' is not a number of threads; give a whole number >= 1")
+        return int(asked)
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 

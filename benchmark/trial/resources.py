@@ -25,7 +25,8 @@ DEFAULT_DRAFT = "ngram"
 class Runtime:
     """How trials run, not what they measure: never part of a cell's identity."""
 
-    threads: int | None = setting(None, "llama.cpp threads (default: all cores, or cores / workers in a sweep)",
+    threads: int | None = setting(None, "llama.cpp threads (default: PROMPTWALK_THREADS, else the cores allowed; "
+                                  "divided by the workers in a sweep)",
                                   positive=True)
     draft: str = setting(DEFAULT_DRAFT, "embedded models: speculative decoding. ngram drafts the reply from token "
                                   "n-grams already in the prompt (llama.cpp's ngram-simple: replies repeat the "

@@ -422,8 +422,8 @@ def test_the_embedded_model_takes_a_thread_per_core_this_process_may_use():
         return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env={**env, **extra})
 
     assert threads().stdout == "1\n" and threads(PROMPTWALK_THREADS="3").stdout == "3\n"
-    out = subprocess.run([sys.executable, "-m", "benchmark.cli", "run", "--llm", "embedded", "--trials", "1"], capture_output=True, text=True,
-                         env={**env, "PROMPTWALK_THREADS": "two"})
+    out = subprocess.run([sys.executable, "-m", "benchmark.cli", "run", "--llm", "embedded", "--trials", "1"],
+                         capture_output=True, text=True, env={**env, "PROMPTWALK_THREADS": "two"})
     assert out.returncode != 0 and "Traceback" not in out.stderr
     assert out.stderr.strip().splitlines()[-1] == (
         "bench: error: PROMPTWALK_THREADS='two' is not a number of threads; give a whole number >= 1"), out.stderr

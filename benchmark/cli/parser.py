@@ -147,7 +147,8 @@ def build_parser() -> argparse.ArgumentParser:
     sweep.add_argument("--rate-limit", type=_number(float, True), default=None, metavar="RPM",
                        help="remote LLM servers: at most RPM queries a minute over all workers")
     sweep.add_argument("--threads", type=_number(int, True), default=None,
-                       help="llama.cpp threads per worker (default: PROMPTWALK_THREADS or the cores allowed, / workers)")
+                       help="llama.cpp threads per worker (default: PROMPTWALK_THREADS, else the cores allowed, "
+                            "divided by the workers)")
     sweep.add_argument("--draft", default=Runtime.draft, choices=DRAFTS,
                        help=f"embedded models, closed loop: speculative decoding ({', '.join(DRAFTS)}; default "
                             f"{Runtime.draft}); it changes a query's time, not a trial's id (a greedy near-tie can flip a "

@@ -7,6 +7,7 @@ import os
 
 import pytest
 
+from benchmark.llm.models import default_threads
 from benchmark.llm.reference import HoldModel
 from robots import available_robots, load_robot
 from sims import available_sims, make_sim
@@ -20,8 +21,8 @@ def pytest_configure(config: pytest.Config) -> None:
     (`PROMPTWALK_THREADS`), so llama.cpp's threads never outnumber the cores beside the other worker's tests: then
     its spinning thread barriers take turns, and CI measured Gemma 270M decoding at 0.6 tok/s (44 alone)."""
     count = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
-    if os.environ.get("PYTEST_XDIST_WORKER") and count > 1:
-        os.environ.setdefault("PROMPTWALK_THREADS", str(max(1, len(os.sched_getaffinity(0)) // count)))
+    if os.environ.get("PYTEST_XDIST_WORKER") and count > 1 and "PROMPTWALK_THREADS" not in os.environ:
+        os.environ["PROMPTWALK_THREADS"] = str(max(1, default_threads() // count))
 
 
 class RecordingHold(HoldModel):
